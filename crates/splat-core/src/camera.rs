@@ -1,0 +1,231 @@
+//! The geometry conventions of DESIGN.md, mirrored from `python/pano4d/camera.py` and
+//! `python/pano4d/sphere.py`. `tests/vectors/geometry.json` (written by Python) keeps
+//! the two languages from drifting.
+//!
+//! World: right-handed, +z up. Equirect W×H (W = 2H), pixel centres at +0.5:
+//! φ = 2π(u/W − 0.5), θ = π(0.5 − v/H), d = (cos θ cos φ, −cos θ sin φ, sin θ).
+//! Cameras: OpenCV (x right, y down, z forward), world-to-camera [R | t].
+
+use glam::{DMat3, DVec2, DVec3, Mat3, Vec3};
+use std::f64::consts::PI;
+
+/// Unit direction for continuous equirect pixel coordinates (u, v).
+pub fn equirect_to_dir(u: f64, v: f64, width: u32, height: u32) -> DVec3 {
+    let phi = 2.0 * PI * (u / width as f64 - 0.5);
+    let theta = PI * (0.5 - v / height as f64);
+    DVec3::new(
+        theta.cos() * phi.cos(),
+        -theta.cos() * phi.sin(),
+        theta.sin(),
+    )
+}
+
+/// Equirect pixel coordinates of a direction (need not be unit length).
+/// u is wrapped into [0, W); v is in [0, H].
+pub fn dir_to_equirect(d: DVec3, width: u32, height: u32) -> DVec2 {
+    let phi = (-d.y).atan2(d.x);
+    let theta = d.z.atan2(d.x.hypot(d.y));
+    let w = width as f64;
+    let mut u = w * (phi / (2.0 * PI) + 0.5);
+    u = u.rem_euclid(w);
+    if u >= w {
+        u = 0.0;
+    }
+    let v = height as f64 * (0.5 - theta / PI);
+    DVec2::new(u, v)
+}
+
+/// World-to-camera rotation for a camera looking along `forward` with no roll.
+/// Rows are the camera's right, down and forward axes in world coordinates.
+/// When `forward` is parallel to `up`, the image top points the way a head tilted back
+/// from +x would see it (the same fallback as Python's `look_rotation`).
+pub fn look_rotation(forward: DVec3, up: DVec3) -> DMat3 {
+    let f = forward.normalize();
+    let mut right = f.cross(up);
+    if right.length() < 1e-9 * up.length().max(1.0) {
+        let fallback = if f.dot(up) < 0.0 {
+            DVec3::X
+        } else {
+            DVec3::NEG_X
+        };
+        right = f.cross(fallback);
+    }
+    let right = right.normalize();
+    let down = f.cross(right);
+    DMat3::from_cols(right, down, f).transpose()
+}
+
+/// A pinhole camera: intrinsics in pixels, world-to-camera rotation and translation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// World-to-camera rotation (rows: right, down, forward).
+    pub rotation: DMat3,
+    pub translation: DVec3,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Camera {
+    /// Horizontal field of view `fov_deg`, square pixels, principal point at the centre.
+    pub fn from_fov(
+        fov_deg: f64,
+        width: u32,
+        height: u32,
+        position: DVec3,
+        forward: DVec3,
+        up: DVec3,
+    ) -> Self {
+        let fx = 0.5 * width as f64 / (fov_deg.to_radians() / 2.0).tan();
+        let rotation = look_rotation(forward, up);
+        Self {
+            fx,
+            fy: fx,
+            cx: width as f64 / 2.0,
+            cy: height as f64 / 2.0,
+            rotation,
+            translation: -(rotation * position),
+            width,
+            height,
+        }
+    }
+
+    /// From row-major K (3×3) and world-to-camera (3×4), as in `views.json`.
+    pub fn from_matrices(k: [[f64; 3]; 3], w2c: [[f64; 4]; 3], width: u32, height: u32) -> Self {
+        let rotation = DMat3::from_cols_array_2d(&[
+            [w2c[0][0], w2c[1][0], w2c[2][0]],
+            [w2c[0][1], w2c[1][1], w2c[2][1]],
+            [w2c[0][2], w2c[1][2], w2c[2][2]],
+        ]);
+        Self {
+            fx: k[0][0],
+            fy: k[1][1],
+            cx: k[0][2],
+            cy: k[1][2],
+            rotation,
+            translation: DVec3::new(w2c[0][3], w2c[1][3], w2c[2][3]),
+            width,
+            height,
+        }
+    }
+
+    /// Camera centre in world coordinates.
+    pub fn position(&self) -> DVec3 {
+        -(self.rotation.transpose() * self.translation)
+    }
+
+    pub fn world_to_camera(&self, p: DVec3) -> DVec3 {
+        self.rotation * p + self.translation
+    }
+
+    /// Pixel coordinates and z-depth of a world point (pixel is non-finite for z = 0).
+    pub fn project(&self, p: DVec3) -> (DVec2, f64) {
+        let c = self.world_to_camera(p);
+        let uv = DVec2::new(
+            self.fx * c.x / c.z + self.cx,
+            self.fy * c.y / c.z + self.cy,
+        );
+        (uv, c.z)
+    }
+
+    /// World point at pixel `uv` and depth along the camera's z.
+    pub fn unproject_z(&self, uv: DVec2, z: f64) -> DVec3 {
+        let ray = DVec3::new((uv.x - self.cx) / self.fx, (uv.y - self.cy) / self.fy, 1.0);
+        self.rotation.transpose() * (ray * z - self.translation)
+    }
+
+    /// World point at pixel `uv` and distance `ray_length` from the camera centre.
+    pub fn unproject_ray(&self, uv: DVec2, ray_length: f64) -> DVec3 {
+        let ray = DVec3::new((uv.x - self.cx) / self.fx, (uv.y - self.cy) / self.fy, 1.0);
+        self.unproject_z(uv, ray_length / ray.length())
+    }
+
+    /// Rotation and translation in f32, for GPU uniforms.
+    pub fn rotation_f32(&self) -> Mat3 {
+        self.rotation.as_mat3()
+    }
+
+    pub fn translation_f32(&self) -> Vec3 {
+        self.translation.as_vec3()
+    }
+}
+
+/// The 12 vertices of the icosahedron used by the view layout and icospheres, unit length.
+pub fn icosahedron_vertices() -> [DVec3; 12] {
+    let p = (1.0 + 5f64.sqrt()) / 2.0;
+    let raw = [
+        [-1.0, p, 0.0],
+        [1.0, p, 0.0],
+        [-1.0, -p, 0.0],
+        [1.0, -p, 0.0],
+        [0.0, -1.0, p],
+        [0.0, 1.0, p],
+        [0.0, -1.0, -p],
+        [0.0, 1.0, -p],
+        [p, 0.0, -1.0],
+        [p, 0.0, 1.0],
+        [-p, 0.0, -1.0],
+        [-p, 0.0, 1.0],
+    ];
+    raw.map(|v| DVec3::from_array(v).normalize())
+}
+
+/// The 20 faces of the icosahedron (vertex indices, counter-clockwise seen from outside).
+pub const ICOSAHEDRON_FACES: [[usize; 3]; 20] = [
+    [0, 11, 5],
+    [0, 5, 1],
+    [0, 1, 7],
+    [0, 7, 10],
+    [0, 10, 11],
+    [1, 5, 9],
+    [5, 11, 4],
+    [11, 10, 2],
+    [10, 7, 6],
+    [7, 1, 8],
+    [3, 9, 4],
+    [3, 4, 2],
+    [3, 2, 6],
+    [3, 6, 8],
+    [3, 8, 9],
+    [4, 9, 5],
+    [2, 4, 11],
+    [6, 2, 10],
+    [8, 6, 7],
+    [9, 8, 1],
+];
+
+/// View directions of the default layout: the icosahedron's 20 face centres.
+pub fn icosahedron_face_centres() -> Vec<DVec3> {
+    let v = icosahedron_vertices();
+    ICOSAHEDRON_FACES
+        .iter()
+        .map(|f| (v[f[0]] + v[f[1]] + v[f[2]]).normalize())
+        .collect()
+}
+
+/// Directions of an `n`-view layout: face centres for n = 20, else a Fibonacci lattice.
+pub fn view_directions(n: usize) -> Vec<DVec3> {
+    if n == 20 {
+        return icosahedron_face_centres();
+    }
+    let golden = PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let a = golden * i as f64;
+            DVec3::new(r * a.cos(), r * a.sin(), z)
+        })
+        .collect()
+}
+
+/// The perspective views of the panorama: `n` cameras at the origin, `fov_deg`, square.
+pub fn view_layout(n: usize, fov_deg: f64, size: u32) -> Vec<Camera> {
+    view_directions(n)
+        .into_iter()
+        .map(|d| Camera::from_fov(fov_deg, size, size, DVec3::ZERO, d, DVec3::Z))
+        .collect()
+}

@@ -1,0 +1,13 @@
+//! splat-core: the Rust half of pano4d.
+//!
+//! - [`camera`]: the equirectangular mapping and pinhole cameras shared with Python
+//!   (DESIGN.md, "Conventions"), checked against `tests/vectors/geometry.json`.
+//! - [`gaussians`]: a CPU-side Gaussian set in the 3DGS parameterisation.
+//!
+//! Python bindings live in [`python`] behind the `python` feature.
+
+pub mod camera;
+pub mod gaussians;
+
+#[cfg(feature = "python")]
+mod python;
