@@ -159,9 +159,7 @@ class Camera:
         y = (uv[..., 1] - self.cy) / self.fy
         return torch.stack([x, y, torch.ones_like(x)], dim=-1)
 
-    def unproject(
-        self, uv: torch.Tensor, depth: torch.Tensor, kind: str = "z"
-    ) -> torch.Tensor:
+    def unproject(self, uv: torch.Tensor, depth: torch.Tensor, kind: str = "z") -> torch.Tensor:
         """Pixel coordinates (..., 2) and depth (...) to world points (..., 3).
 
         ``kind="z"``: depth is distance along the camera's z; ``kind="ray"``: ray length.

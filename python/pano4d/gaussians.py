@@ -56,7 +56,9 @@ class Gaussians:
             if got != shape:
                 raise ValueError(f"Gaussians.{name} must have shape {shape}, got {got}")
         if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3:
-            raise ValueError(f"Gaussians.sh must have shape ({n}, K, 3), got {tuple(self.sh.shape)}")
+            raise ValueError(
+                f"Gaussians.sh must have shape ({n}, K, 3), got {tuple(self.sh.shape)}"
+            )
         sh_degree_for_coeffs(self.sh.shape[1])
 
     def __len__(self) -> int:
@@ -127,6 +129,8 @@ class Gaussians:
     @staticmethod
     def from_numpy(arrays: dict[str, np.ndarray], device: torch.device | str = "cpu") -> Gaussians:
         return Gaussians(
-            **{k: torch.from_numpy(np.asarray(arrays[k], dtype=np.float32)).to(device)
-               for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
+            **{
+                k: torch.from_numpy(np.asarray(arrays[k], dtype=np.float32)).to(device)
+                for k in ("means", "log_scales", "quats", "opacity_logits", "sh")
+            }
         )

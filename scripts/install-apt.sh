@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Install the Debian packages pano4d needs, only when one is missing (so a second run is instant).
+#   mesa-vulkan-drivers + libvulkan1: the Vulkan loader and lavapipe, wgpu's CPU adapter
+#   ffmpeg: MP4 previews
+set -euo pipefail
+packages=(mesa-vulkan-drivers libvulkan1 ffmpeg)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+echo "installing Debian packages: ${missing[*]}"
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
+$sudo apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"

@@ -1,0 +1,45 @@
+"""The pano4d command line: help, init, check, synth argument errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pano4d.cli import app
+from typer.testing import CliRunner
+
+runner = CliRunner()
+
+
+def test_help_lists_only_working_commands() -> None:
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for command in ("init", "check", "synth", "demo"):
+        assert command in result.output
+    assert "panorama" in result.output
+
+
+def test_init_writes_a_commented_example_and_refuses_to_overwrite(tmp_path: Path) -> None:
+    target = tmp_path / "scene.yaml"
+    result = runner.invoke(app, ["init", str(target)])
+    assert result.exit_code == 0, result.output
+    text = target.read_text()
+    assert text.lstrip().startswith("#") and "regions:" in text
+    again = runner.invoke(app, ["init", str(target)])
+    assert again.exit_code == 2
+    assert "--force" in again.output
+    assert target.read_text() == text  # nothing lost
+
+
+def test_check_reports_a_malformed_scene_clearly(tmp_path: Path) -> None:
+    (tmp_path / "pano.png").write_bytes(b"")
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("panorama: pano.png\nregons:\n  - box: [0, 0, 10, 10]\n")
+    result = runner.invoke(app, ["check", str(scene)])
+    assert result.exit_code == 2
+    assert "regons" in result.output and "did you mean 'regions'" in result.output
+
+
+def test_synth_rejects_a_non_2_to_1_size(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["synth", str(tmp_path / "s"), "--width", "300", "--height", "200"])
+    assert result.exit_code == 2
+    assert "twice" in result.output
