@@ -1,0 +1,225 @@
+"""Synthetic scenes (pano4d.synth): determinism, exact depth, motion, views and files."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from pano4d import synth
+from pano4d.camera import Camera
+from pano4d.sphere import equirect_directions, equirect_to_dir
+
+SEED, WIDTH, HEIGHT, FRAMES = 3, 256, 128, 4
+
+
+@pytest.fixture(scope="module")
+def scene() -> synth.SynthScene:
+    return synth.make_scene(SEED, WIDTH, HEIGHT, FRAMES, views=4, view_size=48)
+
+
+def test_same_seed_same_scene_other_seed_other_scene(scene: synth.SynthScene) -> None:
+    again = synth.make_scene(SEED, WIDTH, HEIGHT, FRAMES, views=4, view_size=48)
+    assert torch.equal(again.panorama, scene.panorama)
+    assert torch.equal(again.depth, scene.depth)
+    assert torch.equal(again.mask, scene.mask)
+    assert torch.equal(again.frames[2], scene.frames[2])
+    for a, b in zip(again.views, scene.views, strict=True):
+        assert torch.equal(a.image, b.image) and torch.equal(
+            a.camera.world_to_cam, b.camera.world_to_cam
+        )
+        assert a.time == b.time
+    other = synth.make_scene(SEED + 1, WIDTH, HEIGHT, FRAMES, views=1, view_size=16)
+    assert (other.panorama - scene.panorama).abs().mean() > 0.02
+    assert [o.centre for o in other.objects] != [o.centre for o in scene.objects]
+
+
+def test_shapes_and_ranges(scene: synth.SynthScene) -> None:
+    assert scene.panorama.shape == (HEIGHT, WIDTH, 3) and scene.panorama.dtype == torch.float32
+    assert scene.depth.shape == (HEIGHT, WIDTH) and scene.depth.dtype == torch.float32
+    assert scene.mask.shape == (HEIGHT, WIDTH) and scene.mask.dtype == torch.bool
+    assert scene.frames.shape == (FRAMES, HEIGHT, WIDTH, 3) and len(scene.frames) == FRAMES
+    assert float(scene.panorama.min()) >= 0.0 and float(scene.panorama.max()) <= 1.0
+    assert torch.equal(scene.frames[0], scene.panorama)
+    assert float(scene.depth.max()) == synth.SKY_DEPTH  # the sky, seen from the origin
+    assert float(scene.depth.min()) >= synth.CAMERA_HEIGHT * 0.999  # nothing nearer than the ground
+
+
+def test_every_label_is_drawn(scene: synth.SynthScene) -> None:
+    present = set(scene.labels.unique().tolist())
+    assert {synth.LABEL_SKY, synth.LABEL_TERRAIN, synth.LABEL_WATER} <= present
+
+
+def test_depth_lies_on_the_surface_it_hit(scene: synth.SynthScene) -> None:
+    dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
+    points = scene.depth.view(-1, 1) * dirs
+    labels = scene.labels.view(-1)
+    residual = scene.landscape.surface_residual(points, labels)
+    assert not residual.isnan().any()
+    terrain = labels == synth.LABEL_TERRAIN
+    # Hills beyond the flat meadow are marched; the meadow is analytic.
+    far = terrain & (scene.depth.view(-1) > synth.FLAT_RADIUS)
+    assert int(far.sum()) > 100
+    assert float(residual[terrain].abs().max()) < 5e-3
+    assert float(residual[~terrain].abs().max()) < 5e-3
+
+
+def test_terrain_hits_are_the_first_crossing_along_the_ray(scene: synth.SynthScene) -> None:
+    dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
+    depth, labels = scene.depth.view(-1), scene.labels.view(-1)
+    sel = (labels == synth.LABEL_TERRAIN) & (depth > synth.FLAT_RADIUS + 5)
+    d, t_hit = dirs[sel], depth[sel]
+    # Dense samples before the hit (finer than the march) must be above the terrain.
+    buried = torch.zeros(d.shape[0], dtype=torch.bool)
+    for fraction in torch.linspace(0.3, 0.995, 200):
+        p = (t_hit * fraction)[:, None] * d
+        gap = p[:, 2] - scene.landscape.terrain_height(p[:, 0], p[:, 1])
+        buried |= gap < -0.05
+    # A thin ridge skipped at a grazing angle may hide a few rays; not more.
+    assert d.shape[0] > 500
+    assert float(buried.float().mean()) < 0.01
+
+
+def test_view_from_the_origin_equals_the_panorama(scene: synth.SynthScene) -> None:
+    landscape, pano, depth = scene.landscape, scene.panorama, scene.depth
+    gen = torch.Generator().manual_seed(0)
+    rows = torch.randint(HEIGHT // 8, HEIGHT - HEIGHT // 8, (16,), generator=gen)
+    cols = torch.randint(0, WIDTH, (16,), generator=gen)
+    for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
+        forward = equirect_to_dir(col + 0.5, row + 0.5, WIDTH, HEIGHT)
+        # An odd-sized view's centre pixel looks exactly along its forward axis.
+        camera = Camera.from_fov(10.0, 9, 9, (0.0, 0.0, 0.0), forward)
+        image, z = synth.render_view(landscape, camera, time=0)
+        torch.testing.assert_close(image[4, 4], pano[row, col], atol=2e-3, rtol=0)
+        torch.testing.assert_close(z[4, 4], depth[row, col], atol=1e-3, rtol=1e-4)
+
+
+def test_displaced_views(scene: synth.SynthScene) -> None:
+    median = synth.median_scene_depth(scene.landscape)
+    assert len(scene.views) == 4
+    for i, view in enumerate(scene.views):
+        fraction = synth.VIEW_FRACTIONS[i % 2]
+        assert view.displacement_fraction == fraction
+        distance = float(torch.linalg.norm(view.camera.position))
+        assert distance == pytest.approx(fraction * median, rel=1e-6)
+        assert 0 <= view.time < FRAMES
+        assert view.image.shape == (48, 48, 3) and view.depth.shape == (48, 48)
+        # Each pixel's depth is on a surface: re-cast the unprojected point from the camera.
+        uv = view.camera.pixel_grid().view(-1, 2).double()
+        points = view.camera.unproject(uv, view.depth.view(-1).double()).float()
+        dirs = view.camera.world_directions().view(-1, 3)
+        hits = scene.landscape.cast(view.camera.position.float(), dirs)
+        residual = scene.landscape.surface_residual(points, hits.label)
+        assert float(residual.abs().max()) < 1e-2
+
+
+def test_static_pixels_are_identical_and_moving_pixels_change(scene: synth.SynthScene) -> None:
+    frames = scene.frames.to_tensor()
+    changed = (frames != frames[:1]).any(dim=-1).any(dim=0)
+    assert torch.equal(frames[:, ~scene.mask], frames[:1, ~scene.mask].expand(FRAMES, -1, -1))
+    assert not (changed & ~scene.mask).any()  # the mask covers every changed pixel
+    water = scene.labels == synth.LABEL_WATER
+    assert bool(changed[water].all())
+    assert float(changed[scene.mask].float().mean()) > 0.3  # clear sky does not change
+
+
+def test_frames_loop(scene: synth.SynthScene) -> None:
+    landscape = scene.landscape
+    dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
+    hits = landscape.cast(torch.zeros(3), dirs)
+    at_loop = landscape.shade(torch.zeros(3), dirs, hits, FRAMES).view(HEIGHT, WIDTH, 3)
+    assert torch.equal(at_loop, scene.panorama)
+    # No jump at the wrap: the last-to-first step is like any other step.
+    steps = [
+        float((scene.frames[(t + 1) % FRAMES] - scene.frames[t]).abs().mean())
+        for t in range(FRAMES)
+    ]
+    assert steps[-1] < 2.0 * min(steps[:-1]) and steps[-1] > 0.5 * max(steps[:-1])
+
+
+def test_objects_are_where_the_metadata_says(scene: synth.SynthScene) -> None:
+    landscape = scene.landscape
+    assert len(scene.objects) == len(synth.OBJECT_KINDS)
+    for i, obj in enumerate(scene.objects):
+        centre = torch.tensor(obj.centre)
+        to_centre = centre / torch.linalg.norm(centre)
+        hits = landscape.cast(torch.zeros(3), to_centre[None])
+        distance = float(torch.linalg.norm(centre))
+        if obj.kind == "sphere":
+            expected = distance - obj.size[0]
+        elif obj.kind == "pole":
+            expected = distance * (1.0 - obj.size[0] / math.hypot(*obj.centre[:2]))
+        else:  # the box face the ray meets: slab test in the box frame
+            local = landscape._to_object(obj, torch.zeros(1, 3))[0]
+            direction = landscape._to_object(obj, to_centre[None], direction=True)[0]
+            half = torch.tensor(obj.size)
+            expected = float(((-torch.sign(direction) * half - local) / direction).max())
+        assert int(hits.label[0]) == synth.LABEL_OBJECT + i
+        assert float(hits.depth[0]) == pytest.approx(expected, abs=1e-3)
+        assert obj.centre[2] + synth.CAMERA_HEIGHT == pytest.approx(
+            obj.size[2], abs=1e-6
+        )  # on the ground
+
+
+def test_panorama_looks_like_a_landscape(scene: synth.SynthScene) -> None:
+    pano = scene.panorama
+    assert bool((pano.view(-1, 3).std(dim=0) > 0.08).all())
+    sky = pano[scene.labels == synth.LABEL_SKY]
+    ground = pano[scene.labels == synth.LABEL_TERRAIN]
+    assert float(sky.mean()) > float(ground.mean())  # the sky is brighter than the ground
+    assert float(sky[:, 2].mean()) > float(sky[:, 0].mean())  # and blue
+    assert float(ground[:, 1].mean()) > float(ground[:, 2].mean())  # the meadow is green
+    top, bottom = pano[: HEIGHT // 4], pano[3 * HEIGHT // 4 :]
+    assert float(top.mean()) > float(bottom.mean())
+
+
+def test_bad_arguments_are_refused(scene: synth.SynthScene) -> None:
+    with pytest.raises(ValueError, match="frames"):
+        synth.make_scene(0, 64, 32, 0)
+    with pytest.raises(ValueError, match="2:1"):
+        synth.render_panorama(scene.landscape, 100, 100)
+    with pytest.raises(ValueError, match="outside the meadow"):
+        scene.landscape.cast(torch.tensor([500.0, 0.0, 0.0]), torch.tensor([[1.0, 0.0, 0.0]]))
+
+
+def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
+    from pano4d.config import load_config
+    from pano4d.imageio import read_image
+
+    out = tmp_path / "synth"
+    (out / "gt" / "frames").mkdir(parents=True)
+    (out / "gt" / "frames" / "0099.png").write_bytes(b"stale")  # from an older, longer run
+    yaml_path = synth.write_scene(out, scene, SEED)
+    assert yaml_path == out / "scene.yaml"
+    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    expected = ["depth.exr", "gt/views.json", "mask.png", "panorama.png", "scene.yaml"]
+    expected += [f"gt/frames/{t:04d}.png" for t in range(FRAMES)]
+    expected += [f"gt/views/{i:04d}.png" for i in range(len(scene.views))]
+    assert files == sorted(expected)
+
+    depth = read_image(out / "depth.exr")
+    assert depth.shape == (HEIGHT, WIDTH, 1)
+    assert torch.equal(torch.from_numpy(depth[..., 0]), scene.depth)
+    mask = read_image(out / "mask.png")
+    assert torch.equal(torch.from_numpy(mask[..., 0] > 0.5), scene.mask)
+    frame = read_image(out / "gt" / "frames" / "0002.png")
+    assert (torch.from_numpy(frame) - scene.frames[2]).abs().max() <= 0.5 / 255 + 1e-6
+
+    data = json.loads((out / "gt" / "views.json").read_text())
+    assert data["seed"] == SEED and data["frames"] == FRAMES
+    assert len(data["scene"]["objects"]) == len(scene.objects)
+    for entry, view in zip(data["views"], scene.views, strict=True):
+        camera = Camera.from_dict(entry)
+        assert torch.allclose(camera.world_to_cam, view.camera.world_to_cam)
+        assert torch.allclose(camera.K, view.camera.K)
+        assert entry["time"] == view.time
+        assert (out / "gt" / entry["image"]).is_file()
+
+    cfg = load_config(yaml_path)
+    assert cfg.seed == SEED
+    assert cfg.animate.frames == FRAMES
+    assert cfg.regions[0].motion.speed == pytest.approx(scene.landscape.cloud_speed_deg, rel=1e-5)
+    with pytest.raises(ValueError, match="seed"):
+        synth.write_scene(out, scene, SEED + 1)
