@@ -31,7 +31,10 @@ fn set_to_dict(py: Python<'_>, set: GaussianSet) -> PyResult<Bound<'_, PyDict>> 
     let log_scales: Vec<f32> = set.log_scales.into_iter().flatten().collect();
     let quats: Vec<f32> = set.quats.into_iter().flatten().collect();
     dict.set_item("means", PyArray1::from_vec(py, means).reshape([n, 3])?)?;
-    dict.set_item("log_scales", PyArray1::from_vec(py, log_scales).reshape([n, 3])?)?;
+    dict.set_item(
+        "log_scales",
+        PyArray1::from_vec(py, log_scales).reshape([n, 3])?,
+    )?;
     dict.set_item("quats", PyArray1::from_vec(py, quats).reshape([n, 4])?)?;
     dict.set_item("opacity_logits", PyArray1::from_vec(py, set.opacity_logits))?;
     dict.set_item("sh", PyArray1::from_vec(py, set.sh).reshape([n, k, 3])?)?;
@@ -45,15 +48,23 @@ fn array_values(
     shape: &[Option<usize>],
 ) -> PyResult<(Vec<usize>, Vec<f32>)> {
     let Some(value) = arrays.get_item(key)? else {
-        return Err(PyValueError::new_err(format!("Gaussian arrays lack '{key}'")));
+        return Err(PyValueError::new_err(format!(
+            "Gaussian arrays lack '{key}'"
+        )));
     };
     let array: PyReadonlyArrayDyn<'_, f32> = value
         .extract()
         .map_err(|_| PyValueError::new_err(format!("'{key}' must be a float32 numpy array")))?;
     let got = array.shape();
-    let matches = got.len() == shape.len() && got.iter().zip(shape).all(|(g, w)| w.is_none_or(|w| w == *g));
+    let matches = got.len() == shape.len()
+        && got
+            .iter()
+            .zip(shape)
+            .all(|(g, w)| w.is_none_or(|w| w == *g));
     if !matches {
-        return Err(PyValueError::new_err(format!("'{key}' has shape {got:?}, expected {shape:?} (None = any)")));
+        return Err(PyValueError::new_err(format!(
+            "'{key}' has shape {got:?}, expected {shape:?} (None = any)"
+        )));
     }
     let slice = array
         .as_slice()
@@ -67,9 +78,15 @@ fn set_from_dict(arrays: &Bound<'_, PyDict>) -> PyResult<GaussianSet> {
     let (sh_shape, sh) = array_values(arrays, "sh", &[Some(n), None, Some(3)])?;
     let k = sh_shape[1];
     let Some(sh_degree) = (0..=3).find(|&d| sh_coeffs(d) == k) else {
-        return Err(PyValueError::new_err(format!("'sh' has {k} coefficients per channel, not (degree + 1)^2 for degree 0..3")));
+        return Err(PyValueError::new_err(format!(
+            "'sh' has {k} coefficients per channel, not (degree + 1)^2 for degree 0..3"
+        )));
     };
-    let triples = |v: Vec<f32>| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let triples = |v: Vec<f32>| {
+        v.chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect::<Vec<_>>()
+    };
     let (_, quats) = array_values(arrays, "quats", &[Some(n), Some(4)])?;
     let (_, log_scales) = array_values(arrays, "log_scales", &[Some(n), Some(3)])?;
     let (_, opacity_logits) = array_values(arrays, "opacity_logits", &[Some(n)])?;
@@ -77,7 +94,10 @@ fn set_from_dict(arrays: &Bound<'_, PyDict>) -> PyResult<GaussianSet> {
         sh_degree,
         means: triples(means),
         log_scales: triples(log_scales),
-        quats: quats.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+        quats: quats
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect(),
         opacity_logits,
         sh,
     })
@@ -146,7 +166,9 @@ impl PyPly4dReader {
     }
 
     fn read_dynamic<'py>(&self, py: Python<'py>, t: usize) -> PyResult<Bound<'py, PyDict>> {
-        let set = py.detach(|| self.inner.read_dynamic(t)).map_err(to_py_err)?;
+        let set = py
+            .detach(|| self.inner.read_dynamic(t))
+            .map_err(to_py_err)?;
         set_to_dict(py, set)
     }
 
@@ -162,7 +184,8 @@ impl PyPly4dReader {
 
     /// Writes timestamp `t` (static + dynamic) as a plain `.ply`, atomically.
     fn export_ply(&self, py: Python<'_>, t: usize, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.export_ply(t, &path)).map_err(to_py_err)
+        py.detach(|| self.inner.export_ply(t, &path))
+            .map_err(to_py_err)
     }
 }
 
