@@ -593,7 +593,7 @@ pub fn standard_property_names(sh_degree: u32) -> Vec<String> {
 }
 
 /// Header text of a standard 3DGS PLY with `n` vertices.
-fn standard_header(n: usize, sh_degree: u32) -> String {
+pub(crate) fn standard_header(n: usize, sh_degree: u32) -> String {
     let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
     for name in standard_property_names(sh_degree) {
         header.push_str("property float ");
