@@ -638,12 +638,9 @@ pub fn write_ply(path: impl AsRef<Path>, set: &GaussianSet) -> Result<()> {
     write_atomic(path.as_ref(), |file| file.write_all(&bytes))
 }
 
-/// Writes a file through `fill` into a temporary file in the same folder, fsyncs it and
-/// renames it over `path`, so readers never see a half-written file.
-pub(crate) fn write_atomic(
-    path: &Path,
-    fill: impl FnOnce(&mut File) -> io::Result<()>,
-) -> Result<()> {
+/// A fresh temporary path in the folder of `path` (so that a rename onto `path` is atomic),
+/// and that folder.
+pub(crate) fn temp_path_beside(path: &Path, purpose: &str) -> Result<(PathBuf, PathBuf)> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -656,11 +653,21 @@ pub(crate) fn write_atomic(
         ));
     };
     let tmp = dir.join(format!(
-        ".{}.tmp-{}-{}",
+        ".{}.{purpose}-{}-{}",
         name.to_string_lossy(),
         std::process::id(),
         COUNTER.fetch_add(1, Ordering::Relaxed)
     ));
+    Ok((dir, tmp))
+}
+
+/// Writes a file through `fill` into a temporary file in the same folder, fsyncs it and
+/// renames it over `path`, so readers never see a half-written file.
+pub(crate) fn write_atomic(
+    path: &Path,
+    fill: impl FnOnce(&mut File) -> io::Result<()>,
+) -> Result<()> {
+    let (dir, tmp) = temp_path_beside(path, "tmp")?;
     let result = (|| {
         let mut file = File::create(&tmp)?;
         fill(&mut file)?;
