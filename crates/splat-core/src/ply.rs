@@ -359,12 +359,26 @@ fn decode_standard(
         opacity_logits: Vec::with_capacity(n),
         sh: Vec::with_capacity(n * k * 3),
     };
+    // Every vertex property is float32, so byte offsets are 4 × float indices; converting a
+    // whole record at once avoids a bounds-checked slice per field.
+    let index = |o: usize| o / 4;
+    let (mean_i, scale_i, rot_i) = (
+        mean_off.map(index),
+        scale_off.map(index),
+        rot_off.map(index),
+    );
+    let opacity_i = index(opacity_off);
+    let sh_i: Vec<usize> = sh_off.iter().map(|&o| index(o)).collect();
+    let mut floats = vec![0f32; vertex.stride / 4];
     for record in body.chunks_exact(vertex.stride) {
-        set.means.push(mean_off.map(|o| f32_at(record, o)));
-        set.log_scales.push(scale_off.map(|o| f32_at(record, o)));
-        set.quats.push(rot_off.map(|o| f32_at(record, o)));
-        set.opacity_logits.push(f32_at(record, opacity_off));
-        set.sh.extend(sh_off.iter().map(|&o| f32_at(record, o)));
+        for (f, b) in floats.iter_mut().zip(record.chunks_exact(4)) {
+            *f = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        }
+        set.means.push(mean_i.map(|i| floats[i]));
+        set.log_scales.push(scale_i.map(|i| floats[i]));
+        set.quats.push(rot_i.map(|i| floats[i]));
+        set.opacity_logits.push(floats[opacity_i]);
+        set.sh.extend(sh_i.iter().map(|&i| floats[i]));
     }
     Ok(set)
 }
