@@ -3,11 +3,15 @@
 //! - [`camera`]: the equirectangular mapping and pinhole cameras shared with Python
 //!   (DESIGN.md, "Conventions"), checked against `tests/vectors/geometry.json`.
 //! - [`gaussians`]: a CPU-side Gaussian set in the 3DGS parameterisation.
+//! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
+//! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).
 //!
 //! Python bindings live in [`python`] behind the `python` feature.
 
 pub mod camera;
 pub mod gaussians;
+pub mod ply;
+pub mod ply4d;
 
 #[cfg(feature = "python")]
 mod python;
