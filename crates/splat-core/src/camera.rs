@@ -124,10 +124,7 @@ impl Camera {
     /// Pixel coordinates and z-depth of a world point (pixel is non-finite for z = 0).
     pub fn project(&self, p: DVec3) -> (DVec2, f64) {
         let c = self.world_to_camera(p);
-        let uv = DVec2::new(
-            self.fx * c.x / c.z + self.cx,
-            self.fy * c.y / c.z + self.cy,
-        );
+        let uv = DVec2::new(self.fx * c.x / c.z + self.cx, self.fy * c.y / c.z + self.cy);
         (uv, c.z)
     }
 

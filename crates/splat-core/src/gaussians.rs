@@ -47,7 +47,9 @@ impl GaussianSet {
         ];
         for (name, got, want) in checks {
             if got != want {
-                return Err(format!("{name} has {got} values, expected {want} for {n} Gaussians"));
+                return Err(format!(
+                    "{name} has {got} values, expected {want} for {n} Gaussians"
+                ));
             }
         }
         Ok(())

@@ -8,7 +8,10 @@ use splat_core::camera::{
 };
 
 fn vectors() -> Value {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/vectors/geometry.json");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/vectors/geometry.json"
+    );
     let text = std::fs::read_to_string(path).expect("geometry.json is committed");
     serde_json::from_str(&text).expect("geometry.json parses")
 }
@@ -60,7 +63,10 @@ fn dir_to_equirect_matches_python_including_seam_and_poles() {
         let uv = dir_to_equirect(vec3(&case["dir"]), w, h);
         assert!(uv.x >= 0.0 && uv.x < w as f64, "u out of [0, W): {}", uv.x);
         // At the seam u = 0 and u = W - ε are the same place: compare on the circle.
-        assert!(seam_distance(uv.x, f(&case["u"]), w as f64) < 1e-6, "{case}: got {uv}");
+        assert!(
+            seam_distance(uv.x, f(&case["u"]), w as f64) < 1e-6,
+            "{case}: got {uv}"
+        );
         assert!((uv.y - f(&case["v"])).abs() < 1e-6, "{case}: got {uv}");
     }
 }
@@ -86,7 +92,10 @@ fn cameras_match_python() {
         for r in 0..3 {
             let row = cam.rotation.row(r);
             for c in 0..3 {
-                assert!((row[c] - f(&w2c[r][c])).abs() < 1e-12, "R[{r}][{c}] in {case}");
+                assert!(
+                    (row[c] - f(&w2c[r][c])).abs() < 1e-12,
+                    "R[{r}][{c}] in {case}"
+                );
             }
             assert!((cam.translation[r] - f(&w2c[r][3])).abs() < 1e-9);
         }
@@ -95,7 +104,10 @@ fn cameras_match_python() {
             let (uv, z) = cam.project(vec3(&p["point"]));
             assert!((z - f(&p["z"])).abs() < 1e-9);
             let want = vec2(&p["uv"]);
-            assert!((uv - want).length() < 1e-6 * want.length().max(1.0), "{p}: got {uv}");
+            assert!(
+                (uv - want).length() < 1e-6 * want.length().max(1.0),
+                "{p}: got {uv}"
+            );
         }
         for p in case["unproject_z"].as_array().unwrap() {
             let got = cam.unproject_z(vec2(&p["uv"]), f(&p["z"]));
@@ -147,5 +159,8 @@ fn known_point_projects_to_expected_pixel() {
     let cam = Camera::from_fov(90.0, 200, 100, DVec3::ZERO, DVec3::X, DVec3::Z);
     let (uv, z) = cam.project(DVec3::new(10.0, -1.0, 1.0));
     assert!((z - 10.0).abs() < 1e-12);
-    assert!((uv - DVec2::new(100.0 + 10.0, 50.0 - 10.0)).length() < 1e-9, "{uv}");
+    assert!(
+        (uv - DVec2::new(100.0 + 10.0, 50.0 - 10.0)).length() < 1e-9,
+        "{uv}"
+    );
 }
