@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pano4d.cli import app
 from typer.testing import CliRunner
+
+from pano4d.cli import app
 
 runner = CliRunner()
 
@@ -43,3 +44,32 @@ def test_synth_rejects_a_non_2_to_1_size(tmp_path: Path) -> None:
     result = runner.invoke(app, ["synth", str(tmp_path / "s"), "--width", "300", "--height", "200"])
     assert result.exit_code == 2
     assert "twice" in result.output
+
+
+def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None:
+    import torch
+
+    from pano4d import ply4d
+    from pano4d.gaussians import Gaussians
+
+    def gs(n: int, offset: float) -> Gaussians:
+        return Gaussians(
+            torch.rand(n, 3) + offset,
+            torch.zeros(n, 3),
+            torch.tensor([[1.0, 0, 0, 0]] * n),
+            torch.zeros(n),
+            torch.zeros(n, 1, 3),
+        )
+
+    scene = ply4d.Scene4D(gs(4, 0.0), [gs(2, 1.0), gs(3, 2.0)], [0.0, 0.5], 2.0)
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    out = tmp_path / "t1.ply"
+    result = runner.invoke(app, ["export", str(path), str(out), "--time", "1"])
+    assert result.exit_code == 0, result.output
+    assert len(ply4d.read_ply(out)) == 7
+    bad = runner.invoke(app, ["export", str(path), str(out), "--time", "5"])
+    assert bad.exit_code == 2 and "error" in bad.output
+    (tmp_path / "junk.ply4d").write_bytes(b"not a scene")
+    junk = runner.invoke(app, ["export", str(tmp_path / "junk.ply4d"), str(out)])
+    assert junk.exit_code == 2 and "junk.ply4d" in junk.output

@@ -90,6 +90,22 @@ def synth(
 
 
 @app.command()
+def export(
+    scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
+    out: Annotated[Path, typer.Argument(help="The plain 3DGS .ply to write.")],
+    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index.")] = 0,
+) -> None:
+    """Write one timestamp (static + dynamic Gaussians) as a plain 3DGS .ply any tool opens."""
+    from pano4d import ply4d
+
+    try:
+        ply4d.export(scene, time, out)
+    except (OSError, ValueError, IndexError) as e:
+        fail(f"{scene}: {e}")
+    console.print(f"wrote {out} (time index {time})")
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Argument(help="Output folder.")] = Path("demo"),
     width: Annotated[int, typer.Option(help="Panorama width.")] = 1024,
