@@ -3,11 +3,13 @@
 //! - [`camera`]: the equirectangular mapping and pinhole cameras shared with Python
 //!   (DESIGN.md, "Conventions"), checked against `tests/vectors/geometry.json`.
 //! - [`gaussians`]: a CPU-side Gaussian set in the 3DGS parameterisation.
+//! - [`raster`]: the wgpu compute rasteriser (forward and backward).
 //!
 //! Python bindings live in [`python`] behind the `python` feature.
 
 pub mod camera;
 pub mod gaussians;
+pub mod raster;
 
 #[cfg(feature = "python")]
 mod python;
