@@ -355,8 +355,11 @@ impl Renderer {
         let pixels = camera.width as u64 * camera.height as u64;
 
         // Stage 1: projection, depth sort, tile-count scan.
-        let gaussians = b.gaussians.get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64));
-        queue.write_buffer(gaussians, 0, bytemuck::cast_slice(&scene.packed()));
+        let gaussians = b
+            .gaussians
+            .get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64))
+            .clone();
+        queue.write_buffer(&gaussians, 0, bytemuck::cast_slice(&scene.packed()));
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
         let n64 = n as u64;
         let (counts_len, sums_len) = scratch_len(n + 1);
@@ -365,7 +368,6 @@ impl Renderer {
         let dk = [b.depth_keys[0].get(&device, 4 * n64).clone(), b.depth_keys[1].get(&device, 4 * n64).clone()];
         let dv = [b.depth_vals[0].get(&device, 4 * n64).clone(), b.depth_vals[1].get(&device, 4 * n64).clone()];
         let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
-        let gaussians = gaussians.clone();
         let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
         let out_pixels = b.pixels.get(&device, 4 * PIXEL_CHANNELS as u64 * pixels).clone();
         let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
