@@ -4,6 +4,9 @@ reference against finite differences, extreme inputs, and a real 3DGS scene."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -216,6 +219,18 @@ def test_adapter_info_names_the_adapter() -> None:
     info = adapter_info()
     assert set(info) == {"name", "backend", "device_type", "driver"}
     assert info["name"]
+
+
+def test_adapter_preference_that_matches_nothing_is_a_clear_error() -> None:
+    # The renderer is process-wide, so the preference is tried in a fresh process.
+    code = (
+        "from pano4d.render import adapter_info\n"
+        "try:\n    adapter_info()\nexcept RuntimeError as e:\n    print(e)\n"
+    )
+    env = {**os.environ, "PANO4D_ADAPTER": "no-such-adapter"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert "matches no adapter" in out.stdout and "mesa-vulkan-drivers" in out.stdout
 
 
 def test_gradients_come_back_in_the_input_dtype() -> None:
