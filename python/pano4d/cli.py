@@ -106,6 +106,56 @@ def export(
 
 
 @app.command()
+def info() -> None:
+    """Show the version and the GPU adapter the rasteriser uses (PANO4D_ADAPTER forces one)."""
+    import pano4d
+    from pano4d.render import adapter_info
+
+    console.print(f"pano4d {pano4d.__version__}")
+    try:
+        adapter = adapter_info()
+    except RuntimeError as e:
+        fail(f"no wgpu adapter: {e}\n(the torch backend still works: backend='torch')")
+    for key, value in adapter.items():
+        console.print(f"  {key}: {value}")
+
+
+@app.command("render")
+def render_command(
+    scene: Annotated[Path, typer.Argument(help="A .ply4d scene or a plain 3DGS .ply.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output .png (or .mp4 with --path).")],
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            help="Camera as JSON, or a JSON file: {position, forward, fov_deg[, up]} (the viewer's "
+            "'copy pose') or {K, world_to_cam, width, height}. Default: the panorama's viewpoint."
+        ),
+    ] = None,
+    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index (.ply4d).")] = 0,
+    width: Annotated[int, typer.Option(help="Image width.")] = 1280,
+    height: Annotated[int, typer.Option(help="Image height.")] = 720,
+    path: Annotated[
+        str | None, typer.Option(help="Render a video instead: turntable | fly-through.")
+    ] = None,
+    frames: Annotated[int, typer.Option(help="Video length in frames (--path).")] = 120,
+    fps: Annotated[float, typer.Option(help="Video frame rate (--path).")] = 30.0,
+    backend: Annotated[str, typer.Option(help="wgpu | torch.")] = "wgpu",
+) -> None:
+    """Render test views of a scene headless, through the same rasteriser as training."""
+    from pano4d import views
+
+    try:
+        if path is None:
+            cam = views.parse_camera(camera, width, height)
+            views.render_still(scene, cam, time, out, backend=backend)
+        else:
+            views.render_path(scene, path, out, width, height, frames, fps, backend=backend)
+    except (OSError, ValueError, IndexError, RuntimeError) as e:
+        fail(str(e))
+    console.print(f"wrote {out}")
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Argument(help="Output folder.")] = Path("demo"),
     width: Annotated[int, typer.Option(help="Panorama width.")] = 1024,

@@ -1,0 +1,153 @@
+"""Headless test views: camera specs, `pano4d render` stills and camera-path videos."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from pano4d import imageio, ply4d, views
+from pano4d.camera import Camera
+from pano4d.cli import app
+from pano4d.gaussians import Gaussians
+
+runner = CliRunner()
+
+
+def red_wall(n: int = 64) -> Gaussians:
+    """Opaque red Gaussians on a plane 4 m ahead of the origin (+x)."""
+    yz = torch.stack(
+        torch.meshgrid(torch.linspace(-3, 3, 8), torch.linspace(-3, 3, 8), indexing="ij"), -1
+    ).reshape(-1, 2)[:n]
+    means = torch.cat([torch.full((len(yz), 1), 4.0), yz], dim=1)
+    sh = torch.zeros(len(yz), 1, 3)
+    sh[:, 0, 0] = (1.0 - 0.5) / 0.28209479177387814
+    sh[:, 0, 1:] = (0.0 - 0.5) / 0.28209479177387814
+    return Gaussians(
+        means,
+        torch.full((len(yz), 3), -0.3),
+        torch.tensor([[1.0, 0, 0, 0]] * len(yz)),
+        torch.full((len(yz),), 8.0),
+        sh,
+    )
+
+
+def test_parse_camera_shapes_and_errors(tmp_path: Path) -> None:
+    default = views.parse_camera(None, 64, 48)
+    assert default.position.tolist() == [0, 0, 0]
+    assert default.forward.tolist() == pytest.approx([1, 0, 0])
+    pose = views.parse_camera(
+        '{"position": [1, 2, 3], "forward": [0, 1, 0], "fov_deg": 60}', 64, 48
+    )
+    assert pose.position.tolist() == pytest.approx([1, 2, 3])
+    assert pose.fov_deg()[0] == pytest.approx(60)
+    f = tmp_path / "cam.json"
+    f.write_text(json.dumps(Camera.from_fov(70, 32, 24, (0, 1, 0), (1, 1, 0)).to_dict()))
+    from_file = views.parse_camera(str(f), 32, 24)
+    assert from_file.position.tolist() == pytest.approx([0, 1, 0])
+    with pytest.raises(ValueError, match="forward"):
+        views.parse_camera('{"position": [0, 0, 0]}', 64, 48)
+    with pytest.raises(ValueError, match="JSON"):
+        views.parse_camera("{not json", 64, 48)
+
+
+def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) -> None:
+    scene = tmp_path / "wall.ply"
+    ply4d.write_ply(scene, red_wall())
+    out = tmp_path / "view.png"
+    result = runner.invoke(
+        app, ["render", str(scene), "--out", str(out), "--width", "64", "--height", "48"]
+    )
+    assert result.exit_code == 0, result.output
+    img = imageio.read_image(out)
+    assert img.shape == (48, 64, 3)
+    centre = img[20:28, 28:36]
+    assert centre[..., 0].mean() > 0.9 and centre[..., 1:].mean() < 0.1
+    # Looking the other way there is nothing: black.
+    back = runner.invoke(
+        app,
+        [
+            "render",
+            str(scene),
+            "--out",
+            str(out),
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--camera",
+            '{"position": [0, 0, 0], "forward": [-1, 0, 0]}',
+        ],
+    )
+    assert back.exit_code == 0, back.output
+    assert imageio.read_image(out).max() == 0.0
+
+
+def test_render_errors_are_clear(tmp_path: Path) -> None:
+    missing = runner.invoke(
+        app, ["render", str(tmp_path / "nope.ply"), "--out", str(tmp_path / "x.png")]
+    )
+    assert missing.exit_code == 2 and "nope.ply" in missing.output
+    scene = tmp_path / "wall.ply"
+    ply4d.write_ply(scene, red_wall())
+    bad_time = runner.invoke(
+        app, ["render", str(scene), "--out", str(tmp_path / "x.png"), "--time", "3"]
+    )
+    assert bad_time.exit_code == 2 and "--time" in bad_time.output
+
+
+def test_turntable_video_has_the_frames_and_time_advances(tmp_path: Path) -> None:
+    wall = red_wall()
+    moved = red_wall()
+    moved.means[:, 1] += 100.0  # out of view at t = 1
+    empty = Gaussians.empty()
+    scene = ply4d.Scene4D(empty, [wall, moved], [0.0, 1.0], 1.0)
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    out = tmp_path / "turn.mp4"
+    result = runner.invoke(
+        app,
+        [
+            "render",
+            str(path),
+            "--out",
+            str(out),
+            "--path",
+            "turntable",
+            "--frames",
+            "4",
+            "--width",
+            "32",
+            "--height",
+            "24",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    probe = subprocess.run(
+        [
+            "ffprobe",
+            "-v",
+            "error",
+            "-count_frames",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "stream=nb_read_frames",
+            "-of",
+            "csv=p=0",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert int(probe.stdout.strip()) == 4
+    cams = list(views.path_cameras("fly-through", 8, 8, 4, radius=2.0))
+    assert cams[0].position.tolist() == pytest.approx([0, 0, 0])
+    assert float(torch.linalg.norm(cams[2].position)) == pytest.approx(4.0)
+    with pytest.raises(ValueError, match="turntable"):
+        list(views.path_cameras("orbit", 8, 8, 4, radius=1.0))
