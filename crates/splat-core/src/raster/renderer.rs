@@ -189,6 +189,18 @@ fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     Ok(())
 }
 
+/// Errors when `m` intersections of `bytes_each` exceed one storage binding.
+fn check_intersections(device: &wgpu::Device, m: u32, bytes_each: u64) -> Result<(), RasterError> {
+    let binding_limit = device.limits().max_storage_buffer_binding_size;
+    if bytes_each * m as u64 > binding_limit {
+        return Err(RasterError::Gpu(format!(
+            "{m} tile intersections need more than this device's storage binding limit \
+             ({binding_limit} bytes); render at a lower resolution or with fewer Gaussians"
+        )));
+    }
+    Ok(())
+}
+
 /// A storage buffer that grows (never shrinks) to the largest size asked of it.
 struct GrowBuffer {
     label: &'static str,
@@ -477,13 +489,7 @@ impl Renderer {
         };
         let m = u32::from_le_bytes(total_bytes[..4].try_into().expect("4 bytes"));
         // Every per-intersection array must fit one storage binding (128 MiB on lavapipe).
-        let binding_limit = device.limits().max_storage_buffer_binding_size;
-        if 4 * ISECT_GRAD_FLOATS * m as u64 > binding_limit {
-            return Err(RasterError::Gpu(format!(
-                "{m} tile intersections need more than this device's storage binding limit \
-                 ({binding_limit} bytes); render at a lower resolution or with fewer Gaussians"
-            )));
-        }
+        check_intersections(&device, m, 4)?;
         params.num_intersections = m;
         let b = &mut self.buffers;
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
@@ -643,6 +649,7 @@ impl Renderer {
         let b = &mut self.buffers;
         let v_buf = b.v_pixels.get(&device, 4 * v_pixels.len() as u64).clone();
         queue.write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
+        check_intersections(&device, frame.num_intersections, 4 * ISECT_GRAD_FLOATS)?;
         let m = frame.num_intersections as u64;
         let isect_grads = b
             .isect_grads
