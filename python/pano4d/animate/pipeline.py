@@ -1,0 +1,248 @@
+"""The animating phase as one resumable step: ``run_animate(cfg)`` (``pano4d animate``).
+
+Reads the panorama and the regions, runs the configured backend (``flow``: the embedded
+cinemagraph animator; ``svd``: the Panoramic Denoiser with a diffusers model), copies the
+input into every pixel outside the soft region blend so static pixels are bit-identical,
+and writes (DESIGN.md, "Files a run writes")::
+
+    output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
+    output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
+    output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames
+    output/animate/done.json           the inputs' hash: a finished run is skipped
+
+Every file is written atomically. ``run.json`` records the same hash when a run starts: a
+run killed part-way resumes from the first missing frame (the flow backend is
+deterministic, so the frames it keeps are the frames it would write again); with another
+config or another input the old frames are deleted first.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+from pano4d.animate.regions import Regions, build_regions
+from pano4d.config import SceneConfig, config_hash
+from pano4d.fsutil import write_json_atomic
+from pano4d.imageio import read_image, read_panorama, write_image, write_video
+from pano4d.metrics import VideoMetrics
+
+PREVIEW_MAX_WIDTH = 2048
+
+
+class AnimateError(RuntimeError):
+    """The animating phase cannot run as configured; the message says what to fix."""
+
+
+@dataclass
+class AnimateResult:
+    """Where the phase's outputs are, and what it measured."""
+
+    folder: Path  # output/animate
+    frames: list[Path]
+    video: Path
+    metrics: dict[str, Any]
+    skipped: bool  # True when a finished run with the same inputs was found
+    seconds: float
+
+
+def animate_folder(cfg: SceneConfig) -> Path:
+    return Path(cfg.output) / "animate"
+
+
+def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
+    """Run (or resume, or skip) the animating phase of ``cfg``; see the module docstring."""
+    started = time.perf_counter()
+    console = Console(stderr=True, quiet=not progress)
+    folder = animate_folder(cfg)
+    frames_dir = folder / "frames"
+    suffix = ".exr" if Path(cfg.panorama).suffix.lower() == ".exr" else ".png"
+    count = cfg.animate.frames
+    paths = [frames_dir / f"{t:04d}{suffix}" for t in range(count)]
+    video = folder / "video.mp4"
+    key = inputs_hash(cfg)
+
+    done = _read_json(folder / "done.json")
+    if done.get("inputs_hash") == key and all(p.is_file() for p in paths) and video.is_file():
+        metrics = _read_json(folder / "metrics.json")
+        if metrics:
+            console.print(f"[green]animate:[/] up to date in {folder}, skipped")
+            _print_metrics(console, metrics)
+            return AnimateResult(folder, paths, video, metrics, True, 0.0)
+
+    if _read_json(folder / "run.json").get("inputs_hash") != key:
+        for stale in (frames_dir, folder / "done.json", folder / "metrics.json", video):
+            if stale.is_dir():
+                shutil.rmtree(stale)
+            else:
+                stale.unlink(missing_ok=True)
+    (folder / "done.json").unlink(missing_ok=True)
+    write_json_atomic(folder / "run.json", {"inputs_hash": key, "config_hash": config_hash(cfg)})
+
+    panorama = read_panorama(cfg.panorama)
+    height, width = panorama.shape[:2]
+    regions = build_regions(cfg, width, height)
+    missing = [t for t, p in enumerate(paths) if not p.is_file()]
+    if missing:
+        render = _backend(cfg, panorama, regions)
+        with _progress_bar(console) as bar:
+            task = bar.add_task(
+                f"animate ({cfg.animate.backend})", total=count, completed=count - len(missing)
+            )
+            for t in missing:
+                frame = enforce_static(render(t), panorama, regions.blend)
+                write_image(paths[t], frame, bits=None if suffix == ".exr" else 16)
+                bar.advance(task)
+
+    metrics = _write_video_and_measure(paths, video, panorama, regions, cfg.animate.fps)
+    metrics["backend"] = cfg.animate.backend
+    metrics["seconds"] = time.perf_counter() - started
+    write_json_atomic(folder / "metrics.json", metrics)
+    write_json_atomic(
+        folder / "done.json", {"inputs_hash": key, "config_hash": config_hash(cfg), "frames": count}
+    )
+    _print_metrics(console, metrics)
+    return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"])
+
+
+def inputs_hash(cfg: SceneConfig) -> str:
+    """sha256 of what the frames depend on: the animate settings, regions and seed, and the
+    bytes of the panorama and of every mask file."""
+    digest = hashlib.sha256()
+    settings = {
+        "panorama": str(cfg.panorama),
+        "regions": [r.model_dump(mode="json") for r in cfg.regions],
+        "animate": cfg.animate.model_dump(mode="json"),
+        "seed": cfg.seed,
+    }
+    digest.update(json.dumps(settings, sort_keys=True).encode())
+    files = [Path(cfg.panorama)] + [Path(r.mask) for r in cfg.regions if r.mask is not None]
+    for path in files:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 22), b""):
+                digest.update(block)
+    return digest.hexdigest()
+
+
+def enforce_static(
+    frame: np.ndarray | torch.Tensor, panorama: np.ndarray, blend: torch.Tensor
+) -> np.ndarray:
+    """The frame with the panorama's own pixels wherever the blend weight is 0."""
+    frame = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
+    if frame.shape != panorama.shape:
+        raise AnimateError(
+            f"the backend made a frame of shape {frame.shape}, expected {panorama.shape}"
+        )
+    moving = blend.numpy()[:, :, None] > 0
+    return np.where(moving, frame.astype(np.float32), panorama)
+
+
+# --- backends ----------------------------------------------------------------------------
+def _backend(
+    cfg: SceneConfig, panorama: np.ndarray, regions: Regions
+) -> Callable[[int], np.ndarray | torch.Tensor]:
+    """A function from frame index to frame (H, W, 3) for the configured backend."""
+    if cfg.animate.backend == "flow":
+        from pano4d.animate.flow import FlowAnimator
+
+        animator = FlowAnimator(torch.from_numpy(panorama), regions, cfg.animate.frames, cfg.seed)
+        return animator.frame
+    if cfg.animate.backend == "svd":
+        weights = cfg.animate.weights
+        if weights is None or not Path(weights).is_dir():
+            raise AnimateError(
+                f"backend 'svd' needs a local diffusers model folder in animate.weights, "
+                f"got {weights} (not found)"
+            )
+        try:
+            from pano4d.animate.svd import animate_svd
+        except ImportError as error:
+            raise AnimateError(
+                f"backend 'svd' is not available in this installation ({error}); use backend: flow"
+            ) from error
+        video = animate_svd(cfg, torch.from_numpy(panorama).permute(2, 0, 1), regions.mask, True)
+        expected = (cfg.animate.frames, 3, *panorama.shape[:2])
+        if tuple(video.shape) != expected:
+            raise AnimateError(f"backend 'svd' returned {tuple(video.shape)}, expected {expected}")
+        return lambda t: video[t].permute(1, 2, 0).float().cpu()
+    raise AnimateError(f"unknown animate backend {cfg.animate.backend!r}")
+
+
+# --- outputs -----------------------------------------------------------------------------
+def _write_video_and_measure(
+    paths: list[Path], video: Path, panorama: np.ndarray, regions: Regions, fps: float
+) -> dict[str, Any]:
+    """Read the frames back once: encode the preview and measure them on the way."""
+    metrics = VideoMetrics(panorama, regions.mask)
+
+    def frames() -> Iterator[np.ndarray]:
+        for path in paths:
+            frame = read_image(path)[:, :, :3]
+            metrics.add(frame)
+            yield _preview(frame)
+
+    write_video(video, frames(), fps)
+    return metrics.result()
+
+
+def _preview(frame: np.ndarray) -> np.ndarray:
+    """The frame area-averaged by a power of two to at most PREVIEW_MAX_WIDTH wide."""
+    factor = 1
+    height, width = frame.shape[:2]
+    while width // factor > PREVIEW_MAX_WIDTH and height % (2 * factor) == 0:
+        factor *= 2
+    if factor == 1:
+        return frame
+    t = torch.from_numpy(np.ascontiguousarray(frame)).permute(2, 0, 1)[None]
+    return F.avg_pool2d(t, factor)[0].permute(1, 2, 0).numpy()
+
+
+def _progress_bar(console: Console) -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    )
+
+
+def _print_metrics(console: Console, metrics: dict[str, Any]) -> None:
+    table = Table(title="animate metrics", show_header=True)
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for name, value in metrics.items():
+        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+        table.add_row(name, shown)
+    console.print(table)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}

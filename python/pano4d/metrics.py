@@ -1,0 +1,350 @@
+"""Figures of merit of a panoramic video (``pano4d eval``; ``output/animate/metrics.json``).
+
+Each figure is a small function on (H, W, 3) float frames in [0, 1]; ``animate_metrics``
+streams a video through all of them, holding only the first, previous and current frame.
+
+Optical flow is a dense pyramidal Lucas–Kanade in torch (``optical_flow``): coarse to fine,
+at each level a few Gauss–Newton iterations of the 2×2 normal equations summed over a
+square window, the second image warped by the current estimate. Motion is measured on a
+copy of the frames at most FLOW_MAX_WIDTH wide and reported in full-resolution pixels and
+in degrees of arc at the horizon (360° / W per pixel).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pano4d.camera import Camera
+from pano4d.resample import perspective_to_equirect
+
+FLOW_MAX_WIDTH = 512
+FLOW_WINDOW = 9  # Lucas–Kanade window, pixels at each pyramid level
+FLOW_ITERATIONS = 4  # Gauss–Newton iterations per level
+FLOW_COARSEST = 24  # the coarsest pyramid level is at least this many pixels high
+FRAME_SUFFIXES = (".png", ".exr")
+
+ArrayLike = np.ndarray | torch.Tensor
+
+
+# --- optical flow ------------------------------------------------------------------------
+def optical_flow(
+    first: torch.Tensor,
+    second: torch.Tensor,
+    window: int = FLOW_WINDOW,
+    iterations: int = FLOW_ITERATIONS,
+) -> torch.Tensor:
+    """Dense flow (2, H, W) = (du, dv) in pixels with second(x + flow) ≈ first(x).
+
+    ``first`` and ``second`` are grey images (H, W). Pyramidal Lucas–Kanade: the flow can
+    reach a few pixels times 2^(levels − 1), levels chosen so the coarsest is about
+    FLOW_COARSEST pixels high.
+    """
+    if first.shape != second.shape or first.ndim != 2:
+        raise ValueError(f"expected two grey images of one size, got {first.shape}, {second.shape}")
+    a = first.to(torch.float32)[None, None]
+    b = second.to(torch.float32)[None, None]
+    levels = max(1, int(math.log2(max(1, min(a.shape[-2:]) // FLOW_COARSEST))) + 1)
+    pyramid = [(a, b)]
+    for _ in range(levels - 1):
+        a, b = F.avg_pool2d(a, 2, ceil_mode=True), F.avg_pool2d(b, 2, ceil_mode=True)
+        pyramid.append((a, b))
+    flow = torch.zeros(1, 2, *pyramid[-1][0].shape[-2:])
+    for level, (a, b) in enumerate(reversed(pyramid)):
+        if level:
+            flow = 2.0 * F.interpolate(
+                flow, size=a.shape[-2:], mode="bilinear", align_corners=False
+            )
+        for _ in range(iterations):
+            flow = flow + _lucas_kanade_step(a, b, flow, window)
+    return flow[0]
+
+
+def _lucas_kanade_step(
+    a: torch.Tensor, b: torch.Tensor, flow: torch.Tensor, window: int
+) -> torch.Tensor:
+    """One Gauss–Newton update of the flow (1, 2, H, W) between images (1, 1, H, W)."""
+    warped = _warp(b, flow)
+    mean = 0.5 * (a + warped)
+    gx = 0.5 * (
+        F.pad(mean, (0, 1, 0, 0), mode="replicate")[..., 1:]
+        - F.pad(mean, (1, 0, 0, 0), mode="replicate")[..., :-1]
+    )
+    gy = 0.5 * (
+        F.pad(mean, (0, 0, 0, 1), mode="replicate")[..., 1:, :]
+        - F.pad(mean, (0, 0, 1, 0), mode="replicate")[..., :-1, :]
+    )
+    gt = warped - a
+    terms = torch.cat([gx * gx, gx * gy, gy * gy, gx * gt, gy * gt], dim=1)
+    sums = F.avg_pool2d(terms, window, stride=1, padding=window // 2, count_include_pad=False)
+    xx, xy, yy, xt, yt = sums.unbind(dim=1)
+    # Tikhonov term: flat patches (no texture) keep their flow instead of exploding.
+    ridge = 1e-4 + 1e-3 * (xx + yy)
+    xx, yy = xx + ridge, yy + ridge
+    det = xx * yy - xy * xy
+    du = -(yy * xt - xy * yt) / det
+    dv = -(xx * yt - xy * xt) / det
+    return torch.stack([du, dv], dim=1)
+
+
+def _warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """image(x + flow) for (1, C, H, W) and (1, 2, H, W), bilinear, border replicated."""
+    _, _, height, width = image.shape
+    ys, xs = torch.meshgrid(
+        torch.arange(height, dtype=torch.float32) + 0.5,
+        torch.arange(width, dtype=torch.float32) + 0.5,
+        indexing="ij",
+    )
+    gx = 2.0 * (xs + flow[0, 0]) / width - 1.0
+    gy = 2.0 * (ys + flow[0, 1]) / height - 1.0
+    grid = torch.stack([gx, gy], dim=-1)[None]
+    return F.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+# --- single figures ----------------------------------------------------------------------
+def seam_error(frame: ArrayLike) -> float:
+    """Mean absolute difference between column 0 and column W−1 (neighbours on the sphere)."""
+    f = _tensor(frame)
+    return float((f[:, 0] - f[:, -1]).abs().mean())
+
+
+def pole_error(frame: ArrayLike) -> float:
+    """Mean absolute difference across each pole: the top (and bottom) row at u against the
+    same row at u + W/2, which lies one pixel away over the pole."""
+    f = _tensor(frame)
+    half = f.shape[1] // 2
+    top = (f[0] - torch.roll(f[0], half, dims=0)).abs().mean()
+    bottom = (f[-1] - torch.roll(f[-1], half, dims=0)).abs().mean()
+    return float(0.5 * (top + bottom))
+
+
+def static_error(frame: ArrayLike, panorama: ArrayLike, mask: ArrayLike) -> float:
+    """Largest absolute difference from the panorama outside the moving mask (must be 0)."""
+    f, p, m = _tensor(frame), _tensor(panorama), _mask(mask)
+    if bool(m.all()):
+        return 0.0
+    return float((f[~m] - p[~m]).abs().max())
+
+
+def mean_abs_difference(a: ArrayLike, b: ArrayLike, mask: ArrayLike) -> float:
+    """Mean absolute difference of two frames over the True pixels of ``mask`` (0 if none)."""
+    m = _mask(mask)
+    if not bool(m.any()):
+        return 0.0
+    return float((_tensor(a)[m] - _tensor(b)[m]).abs().mean())
+
+
+def region_flow(a: ArrayLike, b: ArrayLike, mask: ArrayLike) -> tuple[float, float, float]:
+    """Mean flow from frame a to frame b inside ``mask``: (mean length in full-resolution
+    pixels, mean du, mean dv). Measured at most FLOW_MAX_WIDTH wide, away from the mask's
+    border (where the window would straddle static pixels)."""
+    ga, gb, m, factor = _flow_inputs(a, b, mask)
+    flow = optical_flow(ga, gb)
+    if not bool(m.any()):
+        return 0.0, 0.0, 0.0
+    du, dv = flow[0][m] * factor, flow[1][m] * factor
+    return float(torch.hypot(du, dv).mean()), float(du.mean()), float(dv.mean())
+
+
+def cross_view_disagreement(
+    views: torch.Tensor | Sequence[torch.Tensor], cameras: Sequence[Camera], width: int = 512
+) -> float:
+    """Mean absolute deviation, over directions seen by two or more views, of each view's
+    value from the mean of all views seeing that direction.
+
+    ``views`` (n, C, h, w) or n tensors (C, h_k, w_k): per-view images or latents in the
+    cameras' pixel grids (before fusion). Measured on a width × width/2 equirect grid.
+    """
+    if len(views) != len(cameras):
+        raise ValueError(f"{len(views)} views for {len(cameras)} cameras")
+    if len(views) < 2:
+        raise ValueError("cross-view disagreement needs at least two views")
+    height = width // 2
+    values, seen = [], []
+    for view, camera in zip(views, cameras, strict=True):
+        if tuple(view.shape[-2:]) != (camera.height, camera.width):
+            raise ValueError(
+                f"a view is {tuple(view.shape[-2:])}, its camera {camera.height}×{camera.width}"
+            )
+        pano, valid = perspective_to_equirect(view.detach().float().cpu(), camera, width, height)
+        values.append(pano)
+        seen.append(valid)
+    stack = torch.stack(values)  # (n, C, H, W)
+    count = torch.stack(seen).float()  # (n, H, W)
+    total = count.sum(dim=0)
+    overlap = total >= 2
+    if not bool(overlap.any()):
+        return 0.0
+    mean = (stack * count[:, None]).sum(dim=0) / total.clamp(min=1)[None]
+    deviation = ((stack - mean[None]).abs() * count[:, None]).sum(dim=(0, 1))
+    per_pixel = deviation / (total * stack.shape[1]).clamp(min=1)
+    return float(per_pixel[overlap].mean())
+
+
+# --- whole videos ------------------------------------------------------------------------
+class VideoMetrics:
+    """Streaming accumulator: ``add(frame)`` for each frame in order, then ``result()``."""
+
+    def __init__(self, panorama: ArrayLike, mask: ArrayLike) -> None:
+        self.panorama = _tensor(panorama)
+        self.mask = _mask(mask)
+        if tuple(self.mask.shape) != tuple(self.panorama.shape[:2]):
+            raise ValueError(
+                f"mask is {tuple(self.mask.shape)}, panorama {tuple(self.panorama.shape[:2])}"
+            )
+        self.static = ~self.mask
+        self.count = 0
+        self.first: torch.Tensor | None = None
+        self.previous: torch.Tensor | None = None
+        self.seams: list[float] = []
+        self.poles: list[float] = []
+        self.static_max = 0.0
+        self.nonfinite = 0
+        self.steps_moving: list[float] = []
+        self.steps_static: list[float] = []
+        self.flows: list[tuple[float, float, float]] = []
+
+    def add(self, frame: ArrayLike) -> None:
+        f = _tensor(frame)
+        if f.shape != self.panorama.shape:
+            raise ValueError(
+                f"frame {self.count} is {tuple(f.shape)}, panorama {tuple(self.panorama.shape)}"
+            )
+        if not bool(torch.isfinite(f).all()):
+            self.nonfinite += 1
+            f = torch.nan_to_num(f, nan=0.0, posinf=1.0, neginf=0.0)
+        self.seams.append(seam_error(f))
+        self.poles.append(pole_error(f))
+        self.static_max = max(self.static_max, static_error(f, self.panorama, self.mask))
+        if self.previous is not None:
+            self.steps_moving.append(mean_abs_difference(self.previous, f, self.mask))
+            self.steps_static.append(mean_abs_difference(self.previous, f, self.static))
+            self.flows.append(region_flow(self.previous, f, self.mask))
+        else:
+            self.first = f
+        self.previous = f
+        self.count += 1
+
+    def result(self) -> dict[str, Any]:
+        if self.count < 2 or self.first is None or self.previous is None:
+            raise ValueError(f"metrics need at least 2 frames, got {self.count}")
+        width = self.panorama.shape[1]
+        length = float(np.mean([f[0] for f in self.flows]))
+        du = float(np.mean([f[1] for f in self.flows]))
+        dv = float(np.mean([f[2] for f in self.flows]))
+        step = float(np.mean(self.steps_moving))
+        loop = mean_abs_difference(self.previous, self.first, self.mask)
+        seam_input, pole_input = seam_error(self.panorama), pole_error(self.panorama)
+        return {
+            "frames": self.count,
+            "nonfinite_frames": self.nonfinite,
+            "static_error": self.static_max,
+            "seam_error": max(self.seams),
+            "seam_error_input": seam_input,
+            "seam_excess": max(0.0, max(self.seams) - seam_input),
+            "pole_error": max(self.poles),
+            "pole_error_input": pole_input,
+            "pole_excess": max(0.0, max(self.poles) - pole_input),
+            "motion_px_per_frame": length,
+            "motion_deg_per_frame": length * 360.0 / width,
+            "motion_direction_deg": math.degrees(math.atan2(-dv, du)) if length > 0 else 0.0,
+            "flicker_static": float(np.mean(self.steps_static)),
+            "flicker_moving": step,
+            "flicker_per_px_of_motion": step / length if length > 0 else 0.0,
+            "loop_error": loop,
+            "loop_ratio": loop / step if step > 0 else 0.0,
+            "moving_fraction": float(self.mask.float().mean()),
+        }
+
+
+def animate_metrics(
+    frames: Iterable[ArrayLike], panorama: ArrayLike, mask: ArrayLike
+) -> dict[str, Any]:
+    """All figures of a video (frames (H, W, 3) in order) against its input panorama and the
+    bool moving mask: see ``VideoMetrics.result`` for the keys.
+
+    static_error is the largest difference outside the mask (0 when static pixels are
+    bit-identical); seam_/pole_error are the largest over frames, with the input's own
+    value beside them; motion is the mean optical-flow length inside the mask between
+    consecutive frames; flicker_* the mean absolute step between consecutive frames in
+    each part; loop_error the step from the last frame back to the first, and loop_ratio
+    that step over the mean ordinary step (about 1 for a seamless loop).
+    """
+    metrics = VideoMetrics(panorama, mask)
+    for frame in frames:
+        metrics.add(frame)
+    return metrics.result()
+
+
+def frame_paths(folder: str | os.PathLike[str]) -> list[Path]:
+    """The frame files of a folder (0000.png, 0001.png … or .exr), in order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: frames folder not found")
+    paths = sorted(
+        p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES and p.stem.isdigit()
+    )
+    if not paths:
+        raise FileNotFoundError(f"{folder}: no frames (0000.png, 0001.png, … or .exr)")
+    return paths
+
+
+def evaluate_frames(
+    folder: str | os.PathLike[str],
+    panorama: ArrayLike | str | os.PathLike[str],
+    mask: ArrayLike | str | os.PathLike[str],
+) -> dict[str, Any]:
+    """``animate_metrics`` of the frames in ``folder``; the panorama and mask may be arrays
+    or image paths (a mask file: white = moves)."""
+    from pano4d.imageio import read_image, read_mask, read_panorama
+
+    if isinstance(panorama, str | os.PathLike):
+        panorama = read_panorama(panorama)
+    pano = _tensor(panorama)
+    if isinstance(mask, str | os.PathLike):
+        mask = read_mask(mask, pano.shape[1], pano.shape[0])
+
+    def frames() -> Iterator[np.ndarray]:
+        for path in frame_paths(folder):
+            yield read_image(path)[:, :, :3]
+
+    return animate_metrics(frames(), pano, mask)
+
+
+# --- helpers -----------------------------------------------------------------------------
+def _tensor(image: ArrayLike) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(image) if not isinstance(image, torch.Tensor) else image)
+    return t.to(torch.float32)
+
+
+def _mask(mask: ArrayLike) -> torch.Tensor:
+    m = torch.as_tensor(np.asarray(mask) if not isinstance(mask, torch.Tensor) else mask)
+    if m.ndim == 3:
+        m = m[..., 0]
+    return m.to(torch.bool)
+
+
+def _flow_inputs(
+    a: ArrayLike, b: ArrayLike, mask: ArrayLike
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, float]:
+    """Grey images and an eroded mask at most FLOW_MAX_WIDTH wide, and the pixel factor."""
+    ta, tb, m = _tensor(a), _tensor(b), _mask(mask)
+    grey = lambda t: t.mean(dim=-1) if t.ndim == 3 else t  # noqa: E731
+    ga, gb = grey(ta)[None, None], grey(tb)[None, None]
+    width = ga.shape[-1]
+    factor = 1
+    while width // factor > FLOW_MAX_WIDTH and ga.shape[-2] % (2 * factor) == 0:
+        factor *= 2
+    mf = m[None, None].float()
+    if factor > 1:
+        ga, gb = F.avg_pool2d(ga, factor), F.avg_pool2d(gb, factor)
+        mf = F.avg_pool2d(mf, factor)
+    inside = -F.max_pool2d(-mf, FLOW_WINDOW, stride=1, padding=FLOW_WINDOW // 2) >= 1.0
+    return ga[0, 0], gb[0, 0], inside[0, 0], float(factor)
