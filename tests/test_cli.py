@@ -73,3 +73,27 @@ def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None
     (tmp_path / "junk.ply4d").write_bytes(b"not a scene")
     junk = runner.invoke(app, ["export", str(tmp_path / "junk.ply4d"), str(out)])
     assert junk.exit_code == 2 and "junk.ply4d" in junk.output
+
+
+def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
+    from pano4d import imageio
+
+    out = tmp_path / "scene"
+    assert (
+        runner.invoke(
+            app, ["synth", str(out), "--width", "512", "--frames", "3", "--views", "1"]
+        ).exit_code
+        == 0
+    )
+    for name in ("panorama.png", "depth.exr", "mask.png", "scene.yaml", "gt/views.json"):
+        assert (out / name).exists(), name
+    result = runner.invoke(app, ["animate", str(out / "scene.yaml")])
+    assert result.exit_code == 0, result.output
+    frames = sorted((out / "output" / "animate" / "frames").glob("*.png"))
+    assert len(frames) == 3
+    assert imageio.read_image(frames[1]).shape == (256, 512, 3)
+    evaluated = runner.invoke(app, ["eval", str(out / "scene.yaml")])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert "static" in evaluated.output
+    missing = runner.invoke(app, ["eval", str(tmp_path / "nope.yaml")])
+    assert missing.exit_code == 2 and "nope.yaml" in missing.output

@@ -89,6 +89,50 @@ def synth(
     console.print(f"wrote {path}")
 
 
+def load_scene_config(scene: Path):  # type: ignore[no-untyped-def]
+    """The validated scene.yaml, or a clear error and exit."""
+    from pano4d import config
+
+    try:
+        return config.load_config(scene)
+    except config.ConfigError as e:
+        fail(str(e))
+
+
+@app.command()
+def animate(
+    scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
+) -> None:
+    """Animating phase alone: the panoramic video in OUTPUT/animate (resumes after a kill)."""
+    from pano4d.animate.pipeline import AnimateError, run_animate
+
+    cfg = load_scene_config(scene)
+    try:
+        result = run_animate(cfg)
+    except AnimateError as e:
+        fail(str(e))
+    console.print(f"[green]animate:[/] {len(result.frames)} frames in {result.folder}")
+
+
+@app.command("eval")
+def evaluate(
+    scene: Annotated[Path, typer.Argument(help="The scene.yaml whose animation to measure.")],
+) -> None:
+    """Measure an animation: seam, static-region, motion, flicker and loop figures."""
+    from pano4d import metrics
+    from pano4d.animate.pipeline import animate_folder, print_metrics
+    from pano4d.animate.regions import build_regions
+    from pano4d.imageio import read_panorama
+
+    cfg = load_scene_config(scene)
+    frames = animate_folder(cfg) / "frames"
+    if not any(frames.glob("*.png")) and not any(frames.glob("*.exr")):
+        fail(f"no frames in {frames}; run `pano4d animate {scene}` first")
+    panorama = read_panorama(cfg.panorama)
+    regions = build_regions(cfg, panorama.shape[1], panorama.shape[0])
+    print_metrics(console, metrics.evaluate_frames(frames, panorama, regions.mask.numpy()))
+
+
 @app.command()
 def export(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],

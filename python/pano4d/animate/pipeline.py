@@ -87,7 +87,7 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
         metrics = _read_json(folder / "metrics.json")
         if metrics:
             console.print(f"[green]animate:[/] up to date in {folder}, skipped")
-            _print_metrics(console, metrics)
+            print_metrics(console, metrics)
             return AnimateResult(folder, paths, video, metrics, True, 0.0)
 
     if _read_json(folder / "run.json").get("inputs_hash") != key:
@@ -121,7 +121,7 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
     write_json_atomic(
         folder / "done.json", {"inputs_hash": key, "config_hash": config_hash(cfg), "frames": count}
     )
-    _print_metrics(console, metrics)
+    print_metrics(console, metrics)
     return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"])
 
 
@@ -230,7 +230,7 @@ def _progress_bar(console: Console) -> Progress:
     )
 
 
-def _print_metrics(console: Console, metrics: dict[str, Any]) -> None:
+def print_metrics(console: Console, metrics: dict[str, Any]) -> None:
     table = Table(title="animate metrics", show_header=True)
     table.add_column("metric")
     table.add_column("value", justify="right")
