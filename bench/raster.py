@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import torch
+
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.render import adapter_info, render

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from pano4d import config
 from pano4d.config import PRESETS, ConfigError, SceneConfig, config_hash, load_config
 from pano4d.imageio import write_image

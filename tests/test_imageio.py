@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from pano4d import imageio
 from pano4d.imageio import (
     ImageError,

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
 from pano4d import ply4d
 from pano4d.gaussians import Gaussians, sh_coeffs_for_degree
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.render import adapter_info, render

@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+
 from pano4d import resample, sphere
 from pano4d.camera import Camera
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+
 from pano4d import synth
 from pano4d.camera import Camera
 from pano4d.sphere import equirect_directions, equirect_to_dir

@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import torch
+
 from pano4d import sphere
 from pano4d.camera import Camera
 
