@@ -1,0 +1,114 @@
+"""Initial Gaussians from the aligned depth, and the static/dynamic split.
+
+One Gaussian per icosphere sample (near-uniform on the sphere, unlike equirect pixels that
+crowd at the poles) at the aligned ray length along its direction, coloured from the frame,
+a flat disc facing the panorama's centre whose radius is the sample's footprint at that
+depth. A sample whose direction falls in the dilated moving mask belongs to the dynamic set;
+the rest form the static set, optimised once and shared by every timestamp.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from pano4d.gaussians import Gaussians, rgb_to_sh_dc, sh_coeffs_for_degree
+from pano4d.resample import equirect_sampler
+from pano4d.sphere import Icosphere, dir_to_equirect, icosphere, icosphere_frequency_for_spacing
+
+INITIAL_OPACITY = 0.9
+FOOTPRINT_FACTOR = 0.7  # tangent σ as a fraction of the sample spacing at its depth
+THICKNESS = 0.1  # radial σ as a fraction of the tangent σ
+
+
+def init_sphere(width: int, init_stride: int) -> Icosphere:
+    """Icosphere whose spacing is ``init_stride`` pixels of a ``width``-wide panorama's equator."""
+    if init_stride < 1:
+        raise ValueError(f"init_stride must be ≥ 1, got {init_stride}")
+    return icosphere(icosphere_frequency_for_spacing(init_stride * 2 * math.pi / width))
+
+
+def dilate_mask(mask: torch.Tensor, radius: int) -> torch.Tensor:
+    """Dilate an equirect bool mask (H, W) by ``radius`` pixels; wraps at the seam."""
+    if radius <= 0:
+        return mask.clone()
+    x = mask.to(torch.float32)[None, None]
+    x = F.pad(x, (radius, radius, 0, 0), mode="circular")
+    x = F.pad(x, (0, 0, radius, radius), mode="replicate")
+    return F.max_pool2d(x, 2 * radius + 1, stride=1)[0, 0] > 0.5
+
+
+def moving_mask(
+    frames: torch.Tensor, regions: torch.Tensor | None, threshold: float = 1.0 / 255.0
+) -> torch.Tensor:
+    """(H, W) bool: pixels in the configured regions or changing anywhere in the video.
+
+    ``frames`` (L, H, W, 3); ``regions`` (H, W) bool or None.
+    """
+    changed = (frames - frames[:1]).abs().amax(dim=(0, 3)) > threshold
+    return changed if regions is None else changed | regions.to(changed.device)
+
+
+def points_in_mask(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: whether each unit direction (N, 3) lands on a True pixel of ``mask`` (H, W)."""
+    height, width = mask.shape
+    u, v = dir_to_equirect(points.to(torch.float64), width, height)
+    col = u.floor().long().clamp(0, width - 1)
+    row = v.floor().long().clamp(0, height - 1)
+    return mask.to(points.device)[row, col]
+
+
+def _quaternion_from_matrix(m: torch.Tensor) -> torch.Tensor:
+    """(N, 3, 3) rotation matrices → (N, 4) quaternions (w, x, y, z), robust on every branch."""
+    w = torch.sqrt((1 + m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]).clamp(min=0)) / 2
+    x = torch.sqrt((1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2]).clamp(min=0)) / 2
+    y = torch.sqrt((1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2]).clamp(min=0)) / 2
+    z = torch.sqrt((1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]).clamp(min=0)) / 2
+    x = torch.copysign(x, m[:, 2, 1] - m[:, 1, 2])
+    y = torch.copysign(y, m[:, 0, 2] - m[:, 2, 0])
+    z = torch.copysign(z, m[:, 1, 0] - m[:, 0, 1])
+    q = torch.stack([w, x, y, z], dim=-1)
+    return q / torch.linalg.norm(q, dim=-1, keepdim=True)
+
+
+def facing_rotations(dirs: torch.Tensor) -> torch.Tensor:
+    """Quaternions whose local z axis is the direction (N, 3) (discs face the origin)."""
+    d = dirs / torch.linalg.norm(dirs, dim=-1, keepdim=True)
+    helper = torch.where(
+        d[:, 2:3].abs() < 0.9,
+        torch.tensor([0.0, 0.0, 1.0], dtype=d.dtype).expand_as(d),
+        torch.tensor([1.0, 0.0, 0.0], dtype=d.dtype).expand_as(d),
+    )
+    t1 = torch.linalg.cross(helper, d)
+    t1 = t1 / torch.linalg.norm(t1, dim=-1, keepdim=True)
+    t2 = torch.linalg.cross(d, t1)
+    return _quaternion_from_matrix(torch.stack([t1, t2, d], dim=-1))
+
+
+def init_gaussians(
+    points: torch.Tensor,
+    spacing_rad: float,
+    depth: torch.Tensor,
+    frame: torch.Tensor,
+    sh_degree: int = 0,
+) -> Gaussians:
+    """Gaussians at directions ``points`` (N, 3) placed at the equirect ray length ``depth``
+    (H, W) and coloured from ``frame`` (H, W, 3). Float32, on ``depth``'s device."""
+    height, width = depth.shape
+    device = depth.device
+    dirs = points.to(torch.float64)
+    sampler = equirect_sampler(dirs, width, height).to(device)
+    radius = sampler.apply(depth.clamp(min=1e-3).log()).exp()
+    colour = sampler.apply(frame.permute(2, 0, 1).to(torch.float32)).T.clamp(0, 1)
+    means = (dirs.to(device) * radius[:, None].to(torch.float64)).to(torch.float32)
+    tangent = FOOTPRINT_FACTOR * spacing_rad * radius
+    log_scales = torch.stack(
+        [tangent.log(), tangent.log(), (THICKNESS * tangent).log()], dim=-1
+    ).to(torch.float32)
+    quats = facing_rotations(dirs).to(device, torch.float32)
+    opacity = torch.full((len(points),), math.log(INITIAL_OPACITY / (1 - INITIAL_OPACITY)))
+    sh = torch.zeros(len(points), sh_coeffs_for_degree(sh_degree), 3, device=device)
+    sh[:, 0] = rgb_to_sh_dc(colour)
+    return Gaussians(means, log_scales, quats, opacity.to(device), sh)

@@ -1,0 +1,181 @@
+"""Initial Gaussians, the static/dynamic split helpers and the per-timestamp optimiser."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from pano4d.gaussians import SH_C0, Gaussians
+from pano4d.lift.gaussians import (
+    dilate_mask,
+    facing_rotations,
+    init_gaussians,
+    init_sphere,
+    moving_mask,
+    points_in_mask,
+)
+from pano4d.lift.optimize import (
+    GaussianTrainer,
+    Knobs,
+    TrainViews,
+    moved_camera,
+    pearson_loss,
+    sem_alpha,
+)
+from pano4d.resample import equirect_to_perspective
+from pano4d.sphere import equirect_directions, view_layout
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _render(g: Gaussians, camera, background=None):  # type: ignore[no-untyped-def]
+    from pano4d.render import render
+
+    return render(g, camera, background=background, backend="torch")
+
+
+def test_init_places_one_disc_per_sample_at_its_depth_with_its_colour() -> None:
+    ico = init_sphere(64, 8)
+    depth = torch.full((32, 64), 5.0)
+    depth[:16] = 40.0  # upper half farther
+    frame = torch.zeros(32, 64, 3)
+    frame[..., 0] = 1.0
+    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame, sh_degree=1)
+    assert len(g) == len(ico) and g.sh.shape == (len(ico), 4, 3)
+    radius = torch.linalg.norm(g.means, dim=-1)
+    low = ico.points[:, 2] < -0.2
+    assert torch.allclose(radius[low], torch.tensor(5.0), rtol=1e-4)
+    assert torch.allclose(radius[ico.points[:, 2] > 0.2], torch.tensor(40.0), rtol=1e-4)
+    # Colour: 0.5 + C0·dc reproduces the frame's red.
+    assert torch.allclose(0.5 + SH_C0 * g.sh[:, 0], torch.tensor([1.0, 0.0, 0.0]), atol=1e-5)
+    # Footprint grows with depth; the thin axis faces the centre.
+    scales = g.log_scales.exp()
+    assert torch.allclose(scales[low, 0], torch.tensor(0.7 * ico.spacing_rad * 5.0), rtol=1e-4)
+    assert torch.all(scales[:, 2] < scales[:, 0])
+
+
+def test_facing_rotation_turns_local_z_onto_the_direction() -> None:
+    d = torch.randn(50, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    d[0] = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    d = d / torch.linalg.norm(d, dim=-1, keepdim=True)
+    w, x, y, z = facing_rotations(d).unbind(-1)
+    local_z = torch.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1)
+    assert torch.allclose(local_z, d, atol=1e-10)
+
+
+def test_dilation_wraps_the_seam_and_the_moving_mask_catches_changes() -> None:
+    mask = torch.zeros(8, 16, dtype=torch.bool)
+    mask[4, 0] = True
+    grown = dilate_mask(mask, 1)
+    assert grown[4, 15] and grown[3, 1] and grown.sum() == 9
+    frames = torch.zeros(3, 8, 16, 3)
+    frames[2, 1, 5] = 0.5
+    regions = torch.zeros(8, 16, dtype=torch.bool)
+    regions[6, 6] = True
+    moving = moving_mask(frames, regions)
+    assert moving[1, 5] and moving[6, 6] and moving.sum() == 2
+
+
+def test_points_in_mask_follows_the_equirect_mapping() -> None:
+    dirs = equirect_directions(16, 8, torch.float64).reshape(-1, 3)
+    mask = torch.zeros(8, 16, dtype=torch.bool)
+    mask[2, 3] = True
+    inside = points_in_mask(dirs, mask)
+    assert inside.sum() == 1 and inside[2 * 16 + 3]
+
+
+def test_losses_and_schedule() -> None:
+    a = torch.rand(6, 6, generator=torch.Generator().manual_seed(0))
+    w = torch.ones(6, 6)
+    assert float(pearson_loss(a, 3 * a + 2, w)) == pytest.approx(0.0, abs=1e-5)
+    assert float(pearson_loss(a, -a, w)) == pytest.approx(2.0, abs=1e-5)
+    assert [sem_alpha(s, 100) for s in (0, 53, 54, 66, 89, 90, 99)] == [
+        0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.2]  # fmt: skip
+    cam = view_layout(1, 80.0, 8)[0]
+    moved = moved_camera(cam, torch.tensor([1.0, 2.0, 3.0]))
+    assert torch.allclose(moved.position, torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    assert torch.equal(moved.R, cam.R)
+
+
+def _problem(sh_degree: int = 0) -> tuple[Gaussians, TrainViews]:
+    cams = view_layout(4, 90.0, 12)
+    ico = init_sphere(96, 3)
+    depth = torch.full((24, 48), 4.0)
+    v = torch.linspace(0, 1, 24)[:, None, None]
+    u = torch.linspace(0, 1, 48)[None, :, None]
+    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
+    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)  # dim start
+    targets = torch.stack([equirect_to_perspective(frame.permute(2, 0, 1), c).permute(1, 2, 0)
+                           for c in cams])  # fmt: skip
+    views = TrainViews(cams, targets, torch.ones(4, 12, 12), torch.full((4, 12, 12), 4.0))
+    return g, views
+
+
+def test_optimiser_lowers_the_loss_and_resumes_bit_for_bit() -> None:
+    g, views = _problem()
+    knobs = Knobs(iterations=16, lambda_geo=0.05)
+    reference = GaussianTrainer(g, views, knobs, _render, seed=3)
+    first = reference.loss_at(0).item()
+    reference.run()
+    assert reference.loss_at(0).item() < 0.95 * first
+
+    interrupted = GaussianTrainer(g, views, Knobs(iterations=7, lambda_geo=0.05), _render, seed=3)
+    interrupted.run()
+    state = interrupted.state_dict()
+    resumed = GaussianTrainer(g, views, knobs, _render, seed=3)
+    resumed.load_state_dict(state)
+    assert resumed.step == 7
+    result = resumed.run()
+    expected = reference.result()
+    for name, tensor in result.tensors().items():
+        assert torch.equal(tensor, expected.tensors()[name]), name
+
+
+def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> None:
+    g, views = _problem()
+    context, trainable = g[: len(g) // 2], g[len(g) // 2 :]
+    before = context.means.clone()
+    trainable = trainable.map(lambda t: t.clone())
+    trainable.opacity_logits[:3] = -20.0  # transparent: pruned
+    knobs = Knobs(iterations=10, densify=True, densify_every=2, max_gaussians=len(trainable) + 4)
+    trainer = GaussianTrainer(trainable, views, knobs, _render, context=context, seed=0)
+    trainer.run()
+    assert torch.equal(context.means, before)
+    assert trainer.context is not None and torch.equal(trainer.context.means, before)
+    out = trainer.result()
+    assert len(out) <= knobs.max_gaussians
+    assert bool((torch.sigmoid(out.opacity_logits) > 0.005).all())
+    assert math.isfinite(trainer.last_loss)
+
+
+def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import transformers
+    from transformers import Dinov2Config, Dinov2Model
+
+    from pano4d.config import FeaturesConfig
+    from pano4d.lift.features import make_feature_model
+
+    transformers.logging.set_verbosity_error()
+    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
+                          intermediate_size=32, patch_size=6, image_size=12)  # fmt: skip
+    torch.manual_seed(0)
+    Dinov2Model(config).save_pretrained(tmp_path / "dino")
+    features = make_feature_model(FeaturesConfig(backend="dinov2", weights=tmp_path / "dino"))
+    g, views = _problem()
+    knobs = Knobs(iterations=4, lambda_sem=1.0, sem_scale=4.0)
+    trainer = GaussianTrainer(g, views, knobs, _render, features=features, seed=0)
+    trainer.step = 3  # past 54 %: α = 0.05, so the perturbed render and both CLS run
+    without = GaussianTrainer(g, views, Knobs(iterations=4), _render, seed=0)
+    without.step = 3
+    with_sem, plain = trainer.loss_at(0).item(), without.loss_at(0).item()
+    assert math.isfinite(with_sem) and with_sem >= plain
+    trainer.run()
+    assert trainer.step == 4
