@@ -200,22 +200,35 @@ def render_command(
 
 
 @app.command()
+def train(
+    scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
+    backend: Annotated[str, typer.Option(help="Rasteriser: wgpu | torch.")] = "wgpu",
+) -> None:
+    """Both phases end to end: animate, align depth, fit Gaussians, write OUTPUT/scene.ply4d.
+
+    Checkpoints after every stage; run the same command again to resume after a kill."""
+    from pano4d.train import run_train
+
+    cfg = load_scene_config(scene)
+    metrics = run_train(cfg, render_backend=backend)
+    console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
+    console.print_json(data=metrics)
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Argument(help="Output folder.")] = Path("demo"),
     width: Annotated[int, typer.Option(help="Panorama width.")] = 1024,
     frames: Annotated[int, typer.Option(help="Number of frames.")] = 8,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    preset: Annotated[str, typer.Option(help="draft | balanced | max.")] = "draft",
 ) -> None:
-    """Run the main job end to end on the embedded defaults (no weights needed)."""
-    from pano4d import synth as synth_mod
+    """The main job on the embedded defaults (no weights): synth → animate → train → previews."""
+    from pano4d.train import demo as run_demo
 
-    scene_dir = synth_mod.run_synth(out, width, width // 2, frames, seed, 8)
-    console.print(f"[green]synthetic scene[/] {scene_dir}")
-    for stage, issue in (
-        ("animate (Panoramic Denoiser)", 4),
-        ("train (Dynamic Panoramic Lifting)", 5),
-    ):
-        console.print(f"[yellow]not built yet:[/] {stage} — issue #{issue}")
+    metrics = run_demo(out, width=width, frames=frames, seed=seed, preset=preset)
+    console.print(f"[green]demo:[/] scene, previews and metrics in {out / 'output'}")
+    console.print_json(data=metrics)
 
 
 def main() -> None:
