@@ -10,6 +10,7 @@ reference (``pano4d.raster_torch``); both follow docs/rasterizer.md.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,6 +34,9 @@ class RenderOutput:
 
 
 def _core() -> Any:
+    # Mesa's device-select Vulkan layer only reorders adapters (we choose our own) and,
+    # without a desktop session, prints "XDG_RUNTIME_DIR is invalid" on every start.
+    os.environ.setdefault("NODEVICE_SELECT", "1")
     try:
         from pano4d import _core
     except ImportError as e:  # pragma: no cover - depends on the build
