@@ -593,7 +593,7 @@ pub fn standard_property_names(sh_degree: u32) -> Vec<String> {
 }
 
 /// Header text of a standard 3DGS PLY with `n` vertices.
-fn standard_header(n: usize, sh_degree: u32) -> String {
+pub(crate) fn standard_header(n: usize, sh_degree: u32) -> String {
     let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
     for name in standard_property_names(sh_degree) {
         header.push_str("property float ");
@@ -666,7 +666,12 @@ pub(crate) fn write_atomic(
         fill(&mut file)?;
         file.sync_all()?;
         drop(file);
-        fs::rename(&tmp, path)
+        fs::rename(&tmp, path)?;
+        // Make the rename itself durable; some platforms cannot open folders, so best effort.
+        if let Ok(folder) = File::open(&dir) {
+            let _ = folder.sync_all();
+        }
+        Ok(())
     })();
     if let Err(e) = result {
         // Best effort: the temporary file is garbage either way.
@@ -889,9 +894,8 @@ mod tests {
         }
     }
 
-    #[test]
-    fn compressed_sh_element() {
-        // One chunk, one vertex, degree 1: 9 uint8 f_rest values.
+    /// A compressed PLY with one chunk, one vertex and a degree-1 `sh` element.
+    fn compressed_sample() -> Vec<u8> {
         let mut text = String::from("ply\nformat binary_little_endian 1.0\nelement chunk 1\n");
         for p in [
             "min_x",
@@ -935,6 +939,12 @@ mod tests {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
         bytes.extend_from_slice(&[0, 255, 128, 0, 0, 0, 0, 0, 0]);
+        bytes
+    }
+
+    #[test]
+    fn compressed_sh_element() {
+        let bytes = compressed_sample();
         let set = parse_ply(&bytes).unwrap();
         assert_eq!(set.sh_degree, 1);
         assert_eq!(set.means[0][0], 2.0);
@@ -946,6 +956,41 @@ mod tests {
         // f_rest_0 (k=1, c=0) = 0 -> -4; f_rest_1 (k=2, c=0) = 255 -> 4.
         assert_eq!(set.sh[3], -4.0);
         assert_eq!(set.sh[6], 4.0);
+    }
+
+    proptest! {
+        // 2 × 1000 cases, well under a second.
+        #![proptest_config(ProptestConfig::with_cases(1000))]
+
+        /// Damaged standard or compressed files give `Ok` or an error, never a panic.
+        #[test]
+        fn fuzz_parse_never_panics(
+            compressed in any::<bool>(),
+            edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..6),
+            cut in any::<prop::sample::Index>(),
+        ) {
+            let mut bytes = if compressed { compressed_sample() } else { encode_ply(&random_set(3, 1, 9)).unwrap() };
+            for (at, value) in edits {
+                let i = at.index(bytes.len());
+                bytes[i] = value;
+            }
+            let keep = cut.index(bytes.len() + 1);
+            let _ = parse_ply(&bytes[..keep]);
+        }
+
+        #[test]
+        fn fuzz_header_text_never_panics(
+            lines in proptest::collection::vec(
+                "element (vertex|chunk|sh) [0-9]{1,3}|property (float|uint|uchar|double) \
+                 (x|y|z|opacity|f_dc_[0-2]|f_rest_[0-9]|scale_[0-2]|rot_[0-3]|packed_position|min_x)\
+                 |property list uchar int vertex_indices|comment [a-z ]{0,8}|[a-z_0-9 ]{0,16}",
+                0..24,
+            ),
+            body in proptest::collection::vec(any::<u8>(), 0..256),
+        ) {
+            let text = format!("ply\nformat binary_little_endian 1.0\n{}\nend_header\n", lines.join("\n"));
+            let _ = parse_ply(&[text.as_bytes(), &body].concat());
+        }
     }
 
     proptest! {

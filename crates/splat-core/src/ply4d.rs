@@ -502,8 +502,40 @@ impl Ply4dReader {
     }
 
     /// Writes timestamp `t` (static + dynamic) as a plain 3DGS `.ply`, atomically.
+    ///
+    /// Sections in the standard layout (all that [`write`] produces) are copied byte for
+    /// byte under a new header; others are decoded and re-encoded.
     pub fn export_ply(&self, t: usize, path: impl AsRef<Path>) -> Result<()> {
-        ply::write_ply(path, &self.read_at(t)?)
+        self.check_time(t)?;
+        let blobs = [self.section_bytes(0)?, self.section_bytes(1 + t)?];
+        let names = ply::standard_property_names(self.header.sh_degree);
+        let mut bodies = Vec::with_capacity(2);
+        let mut total = 0usize;
+        for blob in blobs {
+            let header = ply::parse_header(blob)?;
+            let standard = match header.elements.as_slice() {
+                [vertex] => {
+                    vertex.name == "vertex"
+                        && vertex.properties.iter().map(|p| &p.name).eq(names.iter())
+                        && vertex
+                            .properties
+                            .iter()
+                            .all(|p| p.ty == ply::ScalarType::F32)
+                        && blob.len() - header.body_offset == vertex.count * vertex.stride
+                }
+                _ => false,
+            };
+            if !standard {
+                return ply::write_ply(path, &self.read_at(t)?);
+            }
+            total += header.elements[0].count;
+            bodies.push(&blob[header.body_offset..]);
+        }
+        let header = ply::standard_header(total, self.header.sh_degree);
+        write_atomic(path.as_ref(), |file| {
+            file.write_all(header.as_bytes())?;
+            bodies.iter().try_for_each(|body| file.write_all(body))
+        })
     }
 }
 
@@ -593,6 +625,53 @@ mod tests {
             let b = reader.header().bounds.as_ref().unwrap();
             assert!(b.min[0] <= 1.0 && b.max[0] >= 20.0 + 1.5);
         }
+    }
+
+    #[test]
+    fn export_copies_sections_into_one_ply() {
+        let scene = scene(2, &[4, 6]);
+        let dir = std::env::temp_dir().join(format!("ply4d-export-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let reader = Ply4dReader::from_bytes(encoded(&scene)).unwrap();
+        let out = dir.join("t1.ply");
+        reader.export_ply(1, &out).unwrap();
+        let exported = std::fs::read(&out).unwrap();
+        assert_eq!(
+            exported,
+            ply::encode_ply(&reader.read_at(1).unwrap()).unwrap()
+        );
+        assert!(reader
+            .export_ply(2, &out)
+            .unwrap_err()
+            .to_string()
+            .contains("out of range"));
+
+        // Another writer's sections (here: an unknown property instead of `nx`) are
+        // decoded and re-encoded instead of copied.
+        let mut bytes = encoded(&scene);
+        let table = Ply4dReader::from_bytes(bytes.clone())
+            .unwrap()
+            .sections()
+            .to_vec();
+        for s in &table {
+            let blob = &mut bytes[s.offset as usize..(s.offset + s.length) as usize];
+            let at = blob.windows(3).position(|w| w == b" nx").unwrap();
+            blob[at + 1] = b'q';
+        }
+        let crcs: Vec<u32> = table
+            .iter()
+            .map(|s| crc32fast::hash(&bytes[s.offset as usize..(s.offset + s.length) as usize]))
+            .collect();
+        let bytes = with_header(&bytes, None, |t| {
+            for (i, crc) in crcs.iter().enumerate() {
+                let at = i * TABLE_ENTRY_LEN + 32;
+                t[at..at + 4].copy_from_slice(&crc.to_le_bytes());
+            }
+        });
+        let foreign = Ply4dReader::from_bytes(bytes).unwrap();
+        foreign.export_ply(1, &out).unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), exported);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -1,0 +1,323 @@
+"""pano4d.ply4d: 3DGS .ply and .ply4d round trips, real files, and clear errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from pano4d import ply4d
+from pano4d.gaussians import Gaussians, sh_coeffs_for_degree
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+TRAIN = DATA / "gs_train1000.ply"
+GUITAR = DATA / "gs_guitar.ply"
+GUITAR_COMPRESSED = DATA / "gs_guitar.compressed.ply"
+
+
+def random_gaussians(n: int, degree: int, seed: int) -> Gaussians:
+    gen = torch.Generator().manual_seed(seed)
+    k = sh_coeffs_for_degree(degree)
+
+    def r(*shape: int) -> torch.Tensor:
+        return torch.randn(*shape, generator=gen) * 3
+
+    g = Gaussians(r(n, 3), r(n, 3), r(n, 4), r(n), r(n, k, 3))
+    if n:
+        # Values a lossy path would change: subnormal, -0, huge, inf.
+        g.means[0] = torch.tensor([1e-45, -0.0, 3.0e38])
+        g.opacity_logits[0] = float("inf")
+    return g
+
+
+def assert_bit_equal(a: Gaussians, b: Gaussians) -> None:
+    assert len(a) == len(b)
+    assert a.sh_degree == b.sh_degree
+    for name, ta in a.tensors().items():
+        tb = b.tensors()[name]
+        assert ta.dtype == tb.dtype == torch.float32, name
+        assert torch.equal(ta.view(torch.int32), tb.view(torch.int32)), name
+
+
+def make_scene(degree: int, counts: list[int]) -> ply4d.Scene4D:
+    return ply4d.Scene4D(
+        static=random_gaussians(6, degree, seed=1),
+        dynamic=[random_gaussians(n, degree, seed=10 + t) for t, n in enumerate(counts)],
+        timestamps=[t * 0.1 for t in range(len(counts))],
+        fps=10.0,
+        camera={"position": [0.5, -1.0, 2.0], "params": {"width": 4096, "height": 2048}},
+        provenance={"tool_version": "0.1.0", "config_hash": "deadbeef"},
+        extra={"seed": 7, "note": "test ✓"},
+    )
+
+
+# --- plain .ply ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+@pytest.mark.parametrize("n", [0, 1, 300])
+def test_ply_round_trip_bit_exact(tmp_path: Path, degree: int, n: int) -> None:
+    g = random_gaussians(n, degree, seed=degree * 100 + n)
+    path = tmp_path / "g.ply"
+    ply4d.write_ply(path, g)
+    assert_bit_equal(ply4d.read_ply(str(path)), g)
+    assert os.listdir(tmp_path) == ["g.ply"], "the temporary file must be renamed away"
+
+
+def test_train1000_reads_and_rewrites_byte_identical(tmp_path: Path) -> None:
+    g = ply4d.read_ply(TRAIN)
+    assert len(g) == 1000
+    assert g.sh_degree == 3
+    norms = g.quats.norm(dim=1)
+    # Raw quaternions are kept as stored: |q| spans about 0.64..1.32 in this file.
+    assert norms.min() < 0.7 and norms.max() > 1.3
+    assert g.means[:, 0].min() < -12.9 and g.means[:, 2].max() > 13.7
+    # The file has the writer's exact layout (normals are 0), so a rewrite is the same bytes.
+    out = tmp_path / "train.ply"
+    ply4d.write_ply(out, g)
+    assert out.read_bytes() == TRAIN.read_bytes()
+
+
+def test_guitar_reads() -> None:
+    g = ply4d.read_ply(GUITAR)
+    assert len(g) == 90_854
+    assert g.sh_degree == 0
+    torch.testing.assert_close(g.quats.norm(dim=1), torch.ones(len(g)), atol=1e-5, rtol=0)
+
+
+def compressed_chunks(path: Path) -> np.ndarray:
+    """The (chunks, 18) float32 chunk table of a SuperSplat compressed .ply."""
+    data = path.read_bytes()
+    body = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:body].decode()
+    n_chunks = int(header.split("element chunk ")[1].split()[0])
+    return np.frombuffer(data, dtype="<f4", count=n_chunks * 18, offset=body).reshape(-1, 18)
+
+
+def test_compressed_guitar_matches_decoded_guitar() -> None:
+    packed = ply4d.read_ply(GUITAR_COMPRESSED)
+    plain = ply4d.read_ply(GUITAR)
+    assert len(packed) == len(plain) == 90_854
+    assert packed.sh_degree == 0
+
+    # Positions: within one quantisation step of their chunk (11/10/11 bits over min..max).
+    chunks = torch.from_numpy(compressed_chunks(GUITAR_COMPRESSED).copy())
+    chunk_of = torch.arange(len(plain)) // 256
+    extent = chunks[chunk_of, 3:6] - chunks[chunk_of, 0:3]
+    step = extent / torch.tensor([2047.0, 1023.0, 2047.0])
+    assert ((packed.means - plain.means).abs() <= step + 1e-6).all()
+    # The other attributes went through the same decoder in float64 for the reference file:
+    # log-scales and rotations agree to float32 rounding, colours (f_dc ~ rgb / C0) to 1e-4,
+    # opacity logits (up to ±13.8 at alpha = 1 - 1e-6) to 1e-3.
+    torch.testing.assert_close(packed.log_scales, plain.log_scales, atol=1e-5, rtol=0)
+    torch.testing.assert_close(packed.quats, plain.quats, atol=1e-5, rtol=0)
+    torch.testing.assert_close(packed.sh, plain.sh, atol=1e-4, rtol=0)
+    torch.testing.assert_close(packed.opacity_logits, plain.opacity_logits, atol=1e-3, rtol=0)
+
+
+# --- .ply4d --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_ply4d_round_trip_bit_exact(tmp_path: Path, degree: int) -> None:
+    scene = make_scene(degree, [4, 0, 9])
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(str(path), scene)
+    back = ply4d.read(path)
+    assert back.num_times == 3
+    assert back.timestamps == scene.timestamps  # exact f64 through the JSON header
+    assert back.fps == scene.fps
+    assert back.camera == scene.camera
+    assert back.provenance == scene.provenance
+    assert back.extra == scene.extra
+    assert_bit_equal(back.static, scene.static)
+    for a, b in zip(back.dynamic, scene.dynamic, strict=True):
+        assert_bit_equal(a, b)
+    assert_bit_equal(back.at(2), scene.at(2))
+    assert len(back.at(1)) == 6
+    assert os.listdir(tmp_path) == ["scene.ply4d"]
+
+
+def test_ply4d_empty_scene(tmp_path: Path) -> None:
+    empty = ply4d.Scene4D(Gaussians.empty(2), [], [], fps=24.0)
+    path = tmp_path / "empty.ply4d"
+    ply4d.write(path, empty)
+    back = ply4d.read(path)
+    assert back.num_times == 0
+    assert len(back.static) == 0 and back.static.sh_degree == 2
+    assert back.provenance["tool_version"] == "0.1.0"
+    f = ply4d.open(path)
+    assert f.header["bounds"] is None
+    with pytest.raises(IndexError, match="out of range"):
+        f.at(0)
+
+
+def test_ply4d_lazy_open(tmp_path: Path) -> None:
+    scene = make_scene(1, [3, 5])
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    f = ply4d.open(path)
+    assert f.num_times == 2
+    h = f.header
+    assert h["format_version"] == 1
+    assert h["sh_degree"] == 1
+    assert h["timestamps"] == [0.0, 0.1]
+    assert h["provenance"]["config_hash"] == "deadbeef"
+    all_means = torch.cat([scene.static.means, *[g.means for g in scene.dynamic]])
+    finite = all_means[torch.isfinite(all_means).all(dim=1)]
+    assert h["bounds"]["min"] == pytest.approx(finite.min(dim=0).values.tolist())
+    assert h["bounds"]["max"] == pytest.approx(finite.max(dim=0).values.tolist())
+    f.verify()
+    assert_bit_equal(f.static(), scene.static)
+    assert_bit_equal(f.dynamic(1), scene.dynamic[1])
+    assert_bit_equal(f.at(0), scene.at(0))
+    with pytest.raises(IndexError):
+        f.dynamic(-1)
+
+
+def test_ply4d_pads_lower_sh_degrees(tmp_path: Path) -> None:
+    scene = make_scene(2, [3])
+    scene.dynamic[0] = random_gaussians(3, 0, seed=5)
+    path = tmp_path / "mixed.ply4d"
+    ply4d.write(path, scene)
+    back = ply4d.read(path)
+    assert back.dynamic[0].sh_degree == 2
+    assert_bit_equal(back.dynamic[0], scene.dynamic[0].with_sh_degree(2))
+
+
+def test_export_is_a_plain_ply_of_at_t(tmp_path: Path) -> None:
+    scene = make_scene(3, [2, 7])
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    out = tmp_path / "t1.ply"
+    ply4d.export(path, 1, out)
+    assert_bit_equal(ply4d.read_ply(out), scene.at(1))
+    assert out.read_bytes()[:4] == b"ply\n"
+
+
+def test_ply4d_layout_matches_spec(tmp_path: Path) -> None:
+    """Parse a file by hand following docs/ply4d.md, and cut one section out by copying."""
+    scene = make_scene(1, [3, 0])
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    data = path.read_bytes()
+    magic, version, json_len, n_sections, header_crc = struct.unpack_from("<8sIIII", data)
+    assert magic == b"\x89PLY4D\r\n"
+    assert (version, n_sections) == (1, 3)
+    table_start = 32 + json_len
+    table = data[table_start : table_start + 40 * n_sections]
+    assert zlib.crc32(data[32:table_start] + table) == header_crc
+    assert json.loads(data[32:table_start])["timestamps"] == [0.0, 0.1]
+    entries = [struct.unpack_from("<IIQQQI", table, 40 * i) for i in range(n_sections)]
+    assert [(kind, t) for kind, t, *_ in entries] == [(0, 0), (1, 0), (1, 1)]
+    for i, (_, _, offset, length, count, crc) in enumerate(entries):
+        assert offset % 64 == 0
+        blob = data[offset : offset + length]
+        assert zlib.crc32(blob) == crc
+        cut = tmp_path / f"section{i}.ply"
+        cut.write_bytes(blob)
+        expected = scene.static if i == 0 else scene.dynamic[i - 1]
+        assert count == len(expected)
+        assert_bit_equal(ply4d.read_ply(cut), expected)
+
+
+def test_ply4d_real_scene(tmp_path: Path) -> None:
+    train = ply4d.read_ply(TRAIN)
+    scene = ply4d.Scene4D(train[:600], [train[600:], train[600:800]], [0.0, 0.5], fps=2.0)
+    path = tmp_path / "train.ply4d"
+    ply4d.write(path, scene)
+    assert_bit_equal(ply4d.open(path).at(0), train)
+
+
+# --- errors --------------------------------------------------------------------------
+
+
+def test_ply_errors_name_the_problem(tmp_path: Path) -> None:
+    data = TRAIN.read_bytes()
+    truncated = tmp_path / "truncated.ply"
+    truncated.write_bytes(data[:-10])
+    with pytest.raises(ValueError, match=r"truncated PLY: element 'vertex' needs 248000 bytes"):
+        ply4d.read_ply(truncated)
+
+    ascii_ply = tmp_path / "ascii.ply"
+    ascii_ply.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n"
+    )
+    with pytest.raises(ValueError, match="unsupported PLY format 'ascii'"):
+        ply4d.read_ply(ascii_ply)
+
+    header_end = data.index(b"end_header")
+    no_opacity = data[:header_end].replace(b"property float opacity\n", b"property float alpha\n")
+    missing = tmp_path / "missing.ply"
+    missing.write_bytes(no_opacity + data[header_end:])
+    with pytest.raises(ValueError, match="missing required property 'opacity'"):
+        ply4d.read_ply(missing)
+
+    not_ply = tmp_path / "image.ply"
+    not_ply.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    with pytest.raises(ValueError, match="not a PLY file"):
+        ply4d.read_ply(not_ply)
+
+    with pytest.raises(OSError, match="cannot read"):
+        ply4d.read_ply(tmp_path / "absent.ply")
+
+
+def test_ply4d_errors_name_the_problem(tmp_path: Path) -> None:
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, make_scene(1, [3, 4]))
+    good = path.read_bytes()
+    bad = tmp_path / "bad.ply4d"
+
+    bad.write_bytes(good[:-100])
+    with pytest.raises(ValueError, match="lies outside the data area"):
+        ply4d.open(bad)
+    bad.write_bytes(good[:16])
+    with pytest.raises(ValueError, match=r"truncated \.ply4d"):
+        ply4d.open(bad)
+
+    flipped = bytearray(good)
+    flipped[-5] ^= 0x01  # inside the last dynamic set
+    bad.write_bytes(flipped)
+    f = ply4d.open(bad)  # the header is intact
+    f.static()
+    with pytest.raises(ValueError, match="checksum mismatch in timestamp 1"):
+        f.dynamic(1)
+    with pytest.raises(ValueError, match="checksum mismatch in timestamp 1"):
+        f.verify()
+
+    header_flip = bytearray(good)
+    header_flip[40] ^= 0x01
+    bad.write_bytes(header_flip)
+    with pytest.raises(ValueError, match="header checksum mismatch"):
+        ply4d.read(bad)
+
+    bad.write_bytes(b"PLY5D\0\0\0" + good[8:])
+    with pytest.raises(ValueError, match="wrong magic"):
+        ply4d.read(bad)
+
+    with pytest.raises(ValueError, match="wrong magic"):
+        ply4d.open(TRAIN)  # a .ply is not a .ply4d
+
+    with pytest.raises(OSError, match="cannot open"):
+        ply4d.open(tmp_path / "absent.ply4d")
+
+
+def test_write_rejects_bad_scenes(tmp_path: Path) -> None:
+    scene = make_scene(0, [2])
+    scene.fps = float("nan")
+    with pytest.raises(ValueError, match="finite"):
+        ply4d.write(tmp_path / "nan.ply4d", scene)
+    scene = make_scene(0, [2])
+    scene.extra = {"tensor": torch.zeros(1)}
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        ply4d.write(tmp_path / "obj.ply4d", scene)
+    with pytest.raises(ValueError, match="2 timestamps but 1 dynamic sets"):
+        ply4d.Scene4D(scene.static, scene.dynamic, [0.0, 1.0], fps=1.0)
+    with pytest.raises(OSError):
+        ply4d.write(tmp_path / "no" / "such" / "dir.ply4d", make_scene(0, [1]))
+    assert sorted(os.listdir(tmp_path)) == []
