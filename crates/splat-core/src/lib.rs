@@ -5,6 +5,7 @@
 //! - [`gaussians`]: a CPU-side Gaussian set in the 3DGS parameterisation.
 //! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
 //! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).
+//! - [`raster`]: the wgpu compute rasteriser (forward and backward).
 //!
 //! Python bindings live in [`python`] behind the `python` feature.
 
@@ -12,6 +13,7 @@ pub mod camera;
 pub mod gaussians;
 pub mod ply;
 pub mod ply4d;
+pub mod raster;
 
 #[cfg(feature = "python")]
 mod python;

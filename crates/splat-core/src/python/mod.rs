@@ -3,10 +3,12 @@
 use pyo3::prelude::*;
 
 mod io;
+mod raster;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     io::register(m)?;
+    raster::register(m)?;
     Ok(())
 }

@@ -1,0 +1,103 @@
+//! Adapter choice and device creation.
+//!
+//! A real GPU when one is present, else the CPU adapter (Mesa lavapipe). The environment
+//! variable `PANO4D_ADAPTER` forces one: `gpu`, `cpu`, or a substring of the adapter name.
+
+use super::RasterError;
+
+pub const ADAPTER_ENV: &str = "PANO4D_ADAPTER";
+
+const NO_DRIVER_HINT: &str = "no Vulkan/Metal/DX12 adapter found; on Debian/Ubuntu install a \
+     Vulkan driver with `apt-get install mesa-vulkan-drivers libvulkan1` (lavapipe runs on the \
+     CPU), or use backend=\"torch\"";
+
+/// What `pano4d info` shows about the adapter in use.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AdapterSummary {
+    pub name: String,
+    pub backend: String,
+    pub device_type: String,
+    pub driver: String,
+}
+
+/// A device and queue on the chosen adapter.
+pub struct GpuContext {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: AdapterSummary,
+}
+
+fn is_gpu(info: &wgpu::AdapterInfo) -> bool {
+    matches!(
+        info.device_type,
+        wgpu::DeviceType::DiscreteGpu | wgpu::DeviceType::IntegratedGpu | wgpu::DeviceType::VirtualGpu
+    )
+}
+
+/// Picks an adapter by the `PANO4D_ADAPTER` preference (None: GPU first, then CPU).
+fn choose(adapters: Vec<wgpu::Adapter>, preference: Option<&str>) -> Result<wgpu::Adapter, RasterError> {
+    let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+    let rank = |info: &wgpu::AdapterInfo| match info.device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    let mut candidates: Vec<wgpu::Adapter> = match preference.map(str::to_lowercase).as_deref() {
+        None | Some("") => adapters,
+        Some("gpu") => adapters.into_iter().filter(|a| is_gpu(&a.get_info())).collect(),
+        Some("cpu") => adapters
+            .into_iter()
+            .filter(|a| a.get_info().device_type == wgpu::DeviceType::Cpu)
+            .collect(),
+        Some(name) => adapters
+            .into_iter()
+            .filter(|a| a.get_info().name.to_lowercase().contains(name))
+            .collect(),
+    };
+    candidates.sort_by_key(|a| rank(&a.get_info()));
+    candidates.into_iter().next().ok_or_else(|| match preference {
+        Some(p) if !p.is_empty() => RasterError::NoAdapter(format!(
+            "{ADAPTER_ENV}={p:?} matches no adapter (available: {names:?}); {NO_DRIVER_HINT}"
+        )),
+        _ => RasterError::NoAdapter(NO_DRIVER_HINT.to_string()),
+    })
+}
+
+impl GpuContext {
+    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` (see the module docs).
+    pub fn new() -> Result<Self, RasterError> {
+        let preference = std::env::var(ADAPTER_ENV).ok();
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::PRIMARY;
+        let instance = wgpu::Instance::new(desc);
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+        let adapter = choose(adapters, preference.as_deref())?;
+        let info = adapter.get_info();
+        // The adapter's own limits: large scenes need storage buffers beyond the defaults.
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("pano4d rasteriser"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| RasterError::Device(e.to_string()))?;
+        // Validation errors are collected by error scopes; never panic on them.
+        device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
+            eprintln!("pano4d: uncaptured wgpu error: {e}");
+        }));
+        Ok(Self {
+            device,
+            queue,
+            adapter: AdapterSummary {
+                name: info.name.clone(),
+                backend: format!("{:?}", info.backend).to_lowercase(),
+                device_type: format!("{:?}", info.device_type),
+                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+            },
+        })
+    }
+}

@@ -1,0 +1,644 @@
+//! The rasteriser: pipelines, reusable buffers, forward and backward.
+
+use super::context::GpuContext;
+use super::kernels::{
+    bind_group, compile, dispatch_linear, div_ceil, scratch_len, SortKernels, COMMON_WGSL,
+    GAUSSIAN_WGSL,
+};
+use super::RasterError;
+use crate::camera::Camera;
+use crate::gaussians::sh_coeffs;
+
+const PROJECT_WGSL: &str = include_str!("../../../../shaders/project.wgsl");
+const TILES_WGSL: &str = include_str!("../../../../shaders/tiles.wgsl");
+const RANGES_WGSL: &str = include_str!("../../../../shaders/ranges.wgsl");
+const RASTERIZE_WGSL: &str = include_str!("../../../../shaders/rasterize.wgsl");
+const RASTERIZE_BACKWARD_WGSL: &str = include_str!("../../../../shaders/rasterize_backward.wgsl");
+const PROJECT_BACKWARD_WGSL: &str = include_str!("../../../../shaders/project_backward.wgsl");
+
+pub const TILE_SIZE: u32 = 16;
+/// Floats per output pixel: r, g, b, alpha, accumulated depth.
+pub const PIXEL_CHANNELS: usize = 5;
+/// Floats per projected Gaussian (`Projected` in common.wgsl).
+const PROJECTED_FLOATS: u64 = 12;
+/// Floats per intersection gradient (rasterize_backward.wgsl).
+const ISECT_GRAD_FLOATS: u64 = 10;
+/// The EWA Jacobian clamps x/z and y/z to this multiple of tan(half fov), as 3DGS does.
+const JACOBIAN_CLAMP: f64 = 1.3;
+
+/// Gaussians in the 3DGS parameterisation, as flat f32 slices (row-major arrays).
+#[derive(Clone, Copy, Debug)]
+pub struct SceneInput<'a> {
+    pub means: &'a [f32],
+    pub log_scales: &'a [f32],
+    /// (w, x, y, z), normalised on use.
+    pub quats: &'a [f32],
+    pub opacity_logits: &'a [f32],
+    /// `[n][k][3]` with k = (degree + 1)².
+    pub sh: &'a [f32],
+}
+
+impl SceneInput<'_> {
+    pub fn len(&self) -> usize {
+        self.opacity_logits.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.opacity_logits.is_empty()
+    }
+
+    /// Checks the array lengths and returns (n, SH coefficients per channel).
+    fn validate(&self) -> Result<(u32, u32), RasterError> {
+        let n = self.len();
+        let bad = |what: &str, got: usize, want: usize| {
+            RasterError::InvalidInput(format!("{what} has {got} values, expected {want} for {n} Gaussians"))
+        };
+        if self.means.len() != 3 * n {
+            return Err(bad("means", self.means.len(), 3 * n));
+        }
+        if self.log_scales.len() != 3 * n {
+            return Err(bad("log_scales", self.log_scales.len(), 3 * n));
+        }
+        if self.quats.len() != 4 * n {
+            return Err(bad("quats", self.quats.len(), 4 * n));
+        }
+        let k = if n == 0 { 1 } else { self.sh.len() / (3 * n) };
+        let degree_ok = (0..=3).any(|d| sh_coeffs(d) == k);
+        if !degree_ok || self.sh.len() != 3 * k * n {
+            return Err(RasterError::InvalidInput(format!(
+                "sh has {} values: expected n * k * 3 with k in {{1, 4, 9, 16}} for {n} Gaussians",
+                self.sh.len()
+            )));
+        }
+        let n32 = u32::try_from(n)
+            .ok()
+            .filter(|&v| v < u32::MAX / 64)
+            .ok_or_else(|| RasterError::InvalidInput(format!("too many Gaussians: {n}")))?;
+        Ok((n32, k as u32))
+    }
+
+    /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
+    fn packed(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(11 * self.len() + self.sh.len());
+        for part in [self.means, self.log_scales, self.quats, self.opacity_logits, self.sh] {
+            out.extend_from_slice(part);
+        }
+        out
+    }
+}
+
+/// Per-call options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub background: [f32; 3],
+    /// Multiply opacity by sqrt(det Σ2D / det(Σ2D + 0.3 I)) (Mip-Splatting's 2D filter).
+    pub antialiased: bool,
+}
+
+/// Gradients in the layout of [`SceneInput`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gradients {
+    pub means: Vec<f32>,
+    pub log_scales: Vec<f32>,
+    pub quats: Vec<f32>,
+    pub opacity_logits: Vec<f32>,
+    pub sh: Vec<f32>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct RenderParams {
+    rot_rows: [[f32; 4]; 3],
+    cam_pos: [f32; 4],
+    intrinsics: [f32; 4],
+    jacobian_limits: [f32; 4],
+    background: [f32; 4],
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    num_gaussians: u32,
+    sh_coeffs: u32,
+    antialiased: u32,
+    num_intersections: u32,
+}
+
+fn render_params(camera: &Camera, settings: &RenderSettings, n: u32, k: u32) -> RenderParams {
+    let r = camera.rotation;
+    let t = camera.translation;
+    let row = |i: usize| {
+        let v = r.row(i);
+        [v.x as f32, v.y as f32, v.z as f32, t[i] as f32]
+    };
+    let p = camera.position();
+    let tan_x = 0.5 * camera.width as f64 / camera.fx;
+    let tan_y = 0.5 * camera.height as f64 / camera.fy;
+    let bg = settings.background;
+    RenderParams {
+        rot_rows: [row(0), row(1), row(2)],
+        cam_pos: [p.x as f32, p.y as f32, p.z as f32, 0.0],
+        intrinsics: [camera.fx as f32, camera.fy as f32, camera.cx as f32, camera.cy as f32],
+        jacobian_limits: [(JACOBIAN_CLAMP * tan_x) as f32, (JACOBIAN_CLAMP * tan_y) as f32, 0.0, 0.0],
+        background: [bg[0], bg[1], bg[2], 0.0],
+        width: camera.width,
+        height: camera.height,
+        tiles_x: div_ceil(camera.width, TILE_SIZE),
+        tiles_y: div_ceil(camera.height, TILE_SIZE),
+        num_gaussians: n,
+        sh_coeffs: k,
+        antialiased: settings.antialiased as u32,
+        num_intersections: 0,
+    }
+}
+
+fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
+    let finite = [camera.fx, camera.fy, camera.cx, camera.cy].iter().all(|v| v.is_finite())
+        && camera.rotation.is_finite()
+        && camera.translation.is_finite();
+    if !finite || camera.fx <= 0.0 || camera.fy <= 0.0 {
+        return Err(RasterError::InvalidInput(
+            "camera intrinsics and pose must be finite with fx, fy > 0".into(),
+        ));
+    }
+    if camera.width == 0 || camera.height == 0 || camera.width > 16384 || camera.height > 16384 {
+        return Err(RasterError::InvalidInput(format!(
+            "image size must be 1..=16384 per side, got {}x{}",
+            camera.width, camera.height
+        )));
+    }
+    Ok(())
+}
+
+/// A storage buffer that grows (never shrinks) to the largest size asked of it.
+struct GrowBuffer {
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+    buffer: Option<wgpu::Buffer>,
+}
+
+impl GrowBuffer {
+    fn new(label: &'static str, extra: wgpu::BufferUsages) -> Self {
+        Self {
+            label,
+            usage: wgpu::BufferUsages::STORAGE | extra,
+            buffer: None,
+        }
+    }
+
+    fn get(&mut self, device: &wgpu::Device, bytes: u64) -> &wgpu::Buffer {
+        // Runtime-sized arrays need at least one element bound, whatever n is.
+        let bytes = bytes.max(256).next_multiple_of(16);
+        let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
+        if !big_enough {
+            // Headroom so that slowly growing scenes do not reallocate every call.
+            let size = bytes + bytes / 4;
+            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(self.label),
+                size: size.next_multiple_of(16),
+                usage: self.usage,
+                mapped_at_creation: false,
+            }));
+        }
+        self.buffer.as_ref().expect("allocated above")
+    }
+}
+
+struct Buffers {
+    params: wgpu::Buffer,
+    gaussians: GrowBuffer,
+    projected: GrowBuffer,
+    tile_counts: GrowBuffer,
+    depth_keys: [GrowBuffer; 2],
+    depth_vals: [GrowBuffer; 2],
+    offsets: GrowBuffer,
+    sort_counts: GrowBuffer,
+    block_sums: GrowBuffer,
+    isect_keys: [GrowBuffer; 2],
+    isect_slots: [GrowBuffer; 2],
+    isect_gaussian: GrowBuffer,
+    ranges: GrowBuffer,
+    pixels: GrowBuffer,
+    pixel_state: GrowBuffer,
+    v_pixels: GrowBuffer,
+    isect_grads: GrowBuffer,
+    grads: GrowBuffer,
+    readback: GrowBuffer,
+}
+
+/// The geometry of one frame, left in the buffers by [`Renderer::encode_frame`].
+struct Frame {
+    params: RenderParams,
+    num_intersections: u32,
+    /// Which ping-pong buffer holds the depth-sorted Gaussian indices.
+    depth_sorted: usize,
+    /// Which ping-pong buffer holds the tile-sorted slots.
+    sorted: usize,
+}
+
+/// Compiled pipelines and reusable buffers on one device. Not thread-safe by itself:
+/// callers serialise access (the Python binding keeps one behind a mutex).
+pub struct Renderer {
+    ctx: GpuContext,
+    sort: SortKernels,
+    project: wgpu::ComputePipeline,
+    gather_counts: wgpu::ComputePipeline,
+    emit: wgpu::ComputePipeline,
+    ranges: wgpu::ComputePipeline,
+    rasterize: wgpu::ComputePipeline,
+    rasterize_backward: wgpu::ComputePipeline,
+    project_backward: wgpu::ComputePipeline,
+    buffers: Buffers,
+}
+
+fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
+    match pollster::block_on(scope.pop()) {
+        Some(e) => Err(RasterError::Gpu(e.to_string())),
+        None => Ok(()),
+    }
+}
+
+impl Renderer {
+    pub fn new(ctx: GpuContext) -> Result<Self, RasterError> {
+        let device = &ctx.device;
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let one = |label: &str, sources: &[&str]| compile(device, label, sources, &["main"]).remove(0);
+        let mut tiles = compile(
+            device,
+            "tiles",
+            &[COMMON_WGSL, TILES_WGSL],
+            &["gather_counts", "emit_intersections"],
+        );
+        let emit = tiles.remove(1);
+        let gather_counts = tiles.remove(0);
+        let copy = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let pair = |label| [GrowBuffer::new(label, copy), GrowBuffer::new(label, copy)];
+        let renderer = Self {
+            sort: SortKernels::new(device),
+            project: one("project", &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_WGSL]),
+            gather_counts,
+            emit,
+            ranges: one("ranges", &[COMMON_WGSL, RANGES_WGSL]),
+            rasterize: one("rasterize", &[COMMON_WGSL, RASTERIZE_WGSL]),
+            rasterize_backward: one("rasterize_backward", &[COMMON_WGSL, RASTERIZE_BACKWARD_WGSL]),
+            project_backward: one(
+                "project_backward",
+                &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_BACKWARD_WGSL],
+            ),
+            buffers: Buffers {
+                params: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("render params"),
+                    size: std::mem::size_of::<RenderParams>() as u64,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+                gaussians: GrowBuffer::new("gaussians", copy),
+                projected: GrowBuffer::new("projected", copy),
+                tile_counts: GrowBuffer::new("tile counts", copy),
+                depth_keys: pair("depth keys"),
+                depth_vals: pair("depth values"),
+                offsets: GrowBuffer::new("offsets", copy),
+                sort_counts: GrowBuffer::new("sort counts", copy),
+                block_sums: GrowBuffer::new("block sums", copy),
+                isect_keys: pair("intersection keys"),
+                isect_slots: pair("intersection slots"),
+                isect_gaussian: GrowBuffer::new("intersection gaussian", copy),
+                ranges: GrowBuffer::new("tile ranges", copy),
+                pixels: GrowBuffer::new("pixels", copy),
+                pixel_state: GrowBuffer::new("pixel state", copy),
+                v_pixels: GrowBuffer::new("pixel gradients", copy),
+                isect_grads: GrowBuffer::new("intersection gradients", copy),
+                grads: GrowBuffer::new("gradients", copy),
+                readback: GrowBuffer {
+                    label: "readback",
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    buffer: None,
+                },
+            },
+            ctx,
+        };
+        pop_error(scope)?;
+        Ok(renderer)
+    }
+
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// Copies `bytes` from `src` to the host.
+    fn read_back(&mut self, src: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
+        let device = &self.ctx.device;
+        let staging = self.buffers.readback.get(device, bytes).clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(src, 0, &staging, 0, bytes);
+        self.ctx.queue.submit([encoder.finish()]);
+        self.read_mapped(&staging, bytes)
+    }
+
+    /// Runs every stage up to and including the forward blending; the results stay in
+    /// the buffers for the read-back or the backward pass.
+    fn encode_frame(
+        &mut self,
+        scene: &SceneInput<'_>,
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<Frame, RasterError> {
+        validate_camera(camera)?;
+        if !settings.background.iter().all(|v| v.is_finite()) {
+            return Err(RasterError::InvalidInput("background must be finite".into()));
+        }
+        let (n, k) = scene.validate()?;
+        let mut params = render_params(camera, settings, n, k);
+        let device = self.ctx.device.clone();
+        let queue = self.ctx.queue.clone();
+        let b = &mut self.buffers;
+        let num_tiles = params.tiles_x * params.tiles_y;
+        let pixels = camera.width as u64 * camera.height as u64;
+
+        // Stage 1: projection, depth sort, tile-count scan.
+        let gaussians = b.gaussians.get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64));
+        queue.write_buffer(gaussians, 0, bytemuck::cast_slice(&scene.packed()));
+        queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
+        let n64 = n as u64;
+        let (counts_len, sums_len) = scratch_len(n + 1);
+        let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
+        let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
+        let dk = [b.depth_keys[0].get(&device, 4 * n64).clone(), b.depth_keys[1].get(&device, 4 * n64).clone()];
+        let dv = [b.depth_vals[0].get(&device, 4 * n64).clone(), b.depth_vals[1].get(&device, 4 * n64).clone()];
+        let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
+        let gaussians = gaussians.clone();
+        let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
+        let out_pixels = b.pixels.get(&device, 4 * PIXEL_CHANNELS as u64 * pixels).clone();
+        let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
+
+        let groups_n = div_ceil(n, 256);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let depth_sorted;
+        {
+            let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
+            let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
+            if n > 0 {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.project);
+                let group = bind_group(
+                    &device,
+                    &self.project,
+                    &[(0, &b.params), (1, &gaussians), (2, &projected), (3, &tile_counts), (4, &dk[0]), (5, &dv[0])],
+                );
+                pass.set_bind_group(0, &group, &[]);
+                dispatch_linear(&mut pass, groups_n);
+            }
+            depth_sorted = self.sort.encode_sort(
+                &device,
+                &mut encoder,
+                [&dk[0], &dk[1]],
+                [&dv[0], &dv[1]],
+                &sort_counts,
+                &block_sums,
+                n,
+                32,
+            );
+            {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.gather_counts);
+                let group = bind_group(
+                    &device,
+                    &self.gather_counts,
+                    &[(0, &b.params), (2, &tile_counts), (3, &dv[depth_sorted]), (4, &offsets)],
+                );
+                pass.set_bind_group(0, &group, &[]);
+                dispatch_linear(&mut pass, div_ceil(n + 1, 256));
+            }
+            self.sort.encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        queue.submit([encoder.finish()]);
+        pop_error(scope)?;
+        let total_bytes = {
+            let staging = self.buffers.readback.get(&device, 4).clone();
+            let mut encoder = device.create_command_encoder(&Default::default());
+            encoder.copy_buffer_to_buffer(&offsets, 4 * n64, &staging, 0, 4);
+            queue.submit([encoder.finish()]);
+            self.read_mapped(&staging, 4)?
+        };
+        let m = u32::from_le_bytes(total_bytes[..4].try_into().expect("4 bytes"));
+        // The backward pass keeps ten floats per intersection.
+        let limit = device.limits().max_buffer_size / (4 * ISECT_GRAD_FLOATS);
+        if m as u64 > limit {
+            return Err(RasterError::Gpu(format!(
+                "{m} tile intersections exceed this device's buffer limit ({limit})"
+            )));
+        }
+        params.num_intersections = m;
+        let b = &mut self.buffers;
+        queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
+
+        // Stage 2: intersections, tile sort, ranges, blending.
+        let m64 = m as u64;
+        let ik = [b.isect_keys[0].get(&device, 4 * m64).clone(), b.isect_keys[1].get(&device, 4 * m64).clone()];
+        let is = [b.isect_slots[0].get(&device, 4 * m64).clone(), b.isect_slots[1].get(&device, 4 * m64).clone()];
+        let ig = b.isect_gaussian.get(&device, 4 * m64).clone();
+        let (counts_len, sums_len) = scratch_len(m);
+        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
+        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        if m > 0 {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.emit);
+            let group = bind_group(
+                &device,
+                &self.emit,
+                &[
+                    (0, &b.params),
+                    (1, &projected),
+                    (2, &tile_counts),
+                    (3, &dv[depth_sorted]),
+                    (4, &offsets),
+                    (5, &ik[0]),
+                    (6, &is[0]),
+                    (7, &ig),
+                ],
+            );
+            pass.set_bind_group(0, &group, &[]);
+            dispatch_linear(&mut pass, groups_n);
+        }
+        let tile_bits = u32::BITS - (num_tiles - 1).leading_zeros();
+        let sorted = self.sort.encode_sort(
+            &device,
+            &mut encoder,
+            [&ik[0], &ik[1]],
+            [&is[0], &is[1]],
+            &sort_counts,
+            &block_sums,
+            m,
+            tile_bits,
+        );
+        encoder.clear_buffer(&ranges, 0, None);
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            if m > 0 {
+                pass.set_pipeline(&self.ranges);
+                let group = bind_group(&device, &self.ranges, &[(0, &b.params), (1, &ik[sorted]), (2, &ranges)]);
+                pass.set_bind_group(0, &group, &[]);
+                dispatch_linear(&mut pass, div_ceil(m, 256));
+            }
+            pass.set_pipeline(&self.rasterize);
+            let group = bind_group(
+                &device,
+                &self.rasterize,
+                &[
+                    (0, &b.params),
+                    (1, &projected),
+                    (2, &is[sorted]),
+                    (3, &ig),
+                    (4, &ranges),
+                    (5, &out_pixels),
+                    (6, &pixel_state),
+                ],
+            );
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(params.tiles_x, params.tiles_y, 1);
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        queue.submit([encoder.finish()]);
+        pop_error(scope)?;
+        Ok(Frame {
+            params,
+            num_intersections: m,
+            depth_sorted,
+            sorted,
+        })
+    }
+
+    fn read_mapped(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
+        let slice = staging.slice(..bytes);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.ctx
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| RasterError::Gpu(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| RasterError::Gpu(e.to_string()))?
+            .map_err(|e| RasterError::Gpu(e.to_string()))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| RasterError::Gpu(e.to_string()))?
+            .to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+
+    /// Renders `scene`: returns H·W·5 floats per pixel (r, g, b, alpha, Σ z·α·T) and the
+    /// number of tile intersections.
+    pub fn forward(
+        &mut self,
+        scene: &SceneInput<'_>,
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<(Vec<f32>, u32), RasterError> {
+        let frame = self.encode_frame(scene, camera, settings)?;
+        let bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
+        let src = self.buffers.pixels.buffer.clone().expect("allocated by encode_frame");
+        let data = self.read_back(&src, bytes)?;
+        Ok((bytemuck::pod_collect_to_vec(&data), frame.num_intersections))
+    }
+
+    /// Gradients of a loss w.r.t. the scene, given its gradient w.r.t. the forward
+    /// output (`v_pixels`: H·W·5 floats in the forward's layout). Re-runs the forward
+    /// geometry, so it needs no state from an earlier call.
+    pub fn backward(
+        &mut self,
+        scene: &SceneInput<'_>,
+        camera: &Camera,
+        settings: &RenderSettings,
+        v_pixels: &[f32],
+    ) -> Result<Gradients, RasterError> {
+        let pixels = camera.width as usize * camera.height as usize;
+        if v_pixels.len() != PIXEL_CHANNELS * pixels {
+            return Err(RasterError::InvalidInput(format!(
+                "pixel gradient has {} values, expected {}",
+                v_pixels.len(),
+                PIXEL_CHANNELS * pixels
+            )));
+        }
+        let frame = self.encode_frame(scene, camera, settings)?;
+        let device = self.ctx.device.clone();
+        let queue = self.ctx.queue.clone();
+        let n = frame.params.num_gaussians as u64;
+        let k = frame.params.sh_coeffs as u64;
+        let grad_floats = 11 * n + 3 * k * n;
+        let b = &mut self.buffers;
+        let v_buf = b.v_pixels.get(&device, 4 * v_pixels.len() as u64).clone();
+        queue.write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
+        let m = frame.num_intersections as u64;
+        let isect_grads = b.isect_grads.get(&device, 4 * ISECT_GRAD_FLOATS * m).clone();
+        let grads = b.grads.get(&device, 4 * grad_floats).clone();
+        let get = |g: &GrowBuffer| g.buffer.clone().expect("allocated by encode_frame");
+        let depth_vals = get(&b.depth_vals[frame.depth_sorted]);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.clear_buffer(&isect_grads, 0, None);
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.rasterize_backward);
+            let group = bind_group(
+                &device,
+                &self.rasterize_backward,
+                &[
+                    (0, &b.params),
+                    (1, &get(&b.projected)),
+                    (2, &get(&b.isect_slots[frame.sorted])),
+                    (3, &get(&b.isect_gaussian)),
+                    (4, &get(&b.ranges)),
+                    (5, &get(&b.pixel_state)),
+                    (6, &v_buf),
+                    (7, &isect_grads),
+                ],
+            );
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
+            if n > 0 {
+                pass.set_pipeline(&self.project_backward);
+                let group = bind_group(
+                    &device,
+                    &self.project_backward,
+                    &[
+                        (0, &b.params),
+                        (1, &get(&b.gaussians)),
+                        (2, &get(&b.tile_counts)),
+                        (3, &depth_vals),
+                        (4, &get(&b.offsets)),
+                        (5, &isect_grads),
+                        (6, &grads),
+                    ],
+                );
+                pass.set_bind_group(0, &group, &[]);
+                dispatch_linear(&mut pass, div_ceil(n as u32, 256));
+            }
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        queue.submit([encoder.finish()]);
+        pop_error(scope)?;
+        let flat: Vec<f32> = if n == 0 {
+            Vec::new()
+        } else {
+            bytemuck::pod_collect_to_vec(&self.read_back(&grads, 4 * grad_floats)?)
+        };
+        let n = n as usize;
+        let k = k as usize;
+        let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n].into_iter().scan(0, |start, len| {
+            let range = *start..*start + len;
+            *start += len;
+            Some(flat[range].to_vec())
+        });
+        let mut next = || parts.next().expect("five parts");
+        Ok(Gradients {
+            means: next(),
+            log_scales: next(),
+            quats: next(),
+            opacity_logits: next(),
+            sh: next(),
+        })
+    }
+}

@@ -1,0 +1,140 @@
+"""``render``: Gaussians + camera → rgb, alpha, expected depth (DESIGN.md, public API).
+
+``backend="wgpu"`` runs the Rust compute rasteriser (``pano4d._core``) as a
+``torch.autograd.Function``: inputs go to the host as float32, the outputs come back on
+the input's device as float32, and the backward pass returns gradients for means,
+log-scales, quaternions, opacity logits and SH. One process-wide renderer (device,
+pipelines, buffers) is created on first use. ``backend="torch"`` is the pure-torch
+reference (``pano4d.raster_torch``); both follow docs/rasterizer.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians
+from pano4d.raster_torch import render_torch
+
+BACKENDS = ("wgpu", "torch")
+# Expected depth is D / alpha where alpha exceeds this, else 0.
+MIN_ALPHA_FOR_DEPTH = 1e-6
+
+
+@dataclass
+class RenderOutput:
+    rgb: torch.Tensor  # (H, W, 3)
+    alpha: torch.Tensor  # (H, W)
+    depth: torch.Tensor  # (H, W) expected z-depth, 0 where nothing was drawn
+
+
+def _core() -> Any:
+    try:
+        from pano4d import _core
+    except ImportError as e:  # pragma: no cover - depends on the build
+        raise ImportError(
+            "pano4d._core (the Rust extension) is not built: run `maturin develop --release` "
+            "or `make setup`; backend='torch' works without it"
+        ) from e
+    return _core
+
+
+def adapter_info() -> dict[str, str]:
+    """The GPU adapter the wgpu backend uses: name, backend, device_type, driver."""
+    return dict(_core().adapter_info())
+
+
+def _flat(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
+
+
+def _camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray, int, int]:
+    return (
+        np.ascontiguousarray(camera.K.numpy()),
+        np.ascontiguousarray(camera.world_to_cam[:3].numpy()),
+        camera.width,
+        camera.height,
+    )
+
+
+class _WgpuRasterize(torch.autograd.Function):
+    """(H, W, 5): r, g, b, alpha, Σ z·α·T, differentiable w.r.t. the five tensors."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        camera: Camera,
+        background: tuple[float, float, float],
+        antialiased: bool,
+        means: torch.Tensor,
+        log_scales: torch.Tensor,
+        quats: torch.Tensor,
+        opacity_logits: torch.Tensor,
+        sh: torch.Tensor,
+    ) -> torch.Tensor:
+        tensors = (means, log_scales, quats, opacity_logits, sh)
+        arrays = [_flat(t) for t in tensors]
+        pixels, _ = _core().render_forward(
+            *arrays, *_camera_args(camera), background, antialiased
+        )
+        ctx.camera, ctx.background, ctx.antialiased = camera, background, antialiased
+        ctx.save_for_backward(*tensors)
+        out = torch.from_numpy(pixels).reshape(camera.height, camera.width, 5)
+        return out.to(means.device)
+
+    @staticmethod
+    def backward(ctx: Any, v_out: torch.Tensor) -> tuple[torch.Tensor | None, ...]:  # type: ignore[override]
+        tensors = ctx.saved_tensors
+        grads = _core().render_backward(
+            *[_flat(t) for t in tensors],
+            *_camera_args(ctx.camera),
+            ctx.background,
+            ctx.antialiased,
+            _flat(v_out),
+        )
+        names = ("means", "log_scales", "quats", "opacity_logits", "sh")
+        out = [
+            torch.from_numpy(grads[name]).reshape(t.shape).to(device=t.device, dtype=t.dtype)
+            for name, t in zip(names, tensors, strict=True)
+        ]
+        return (None, None, None, *out)
+
+
+def render(
+    gaussians: Gaussians,
+    camera: Camera,
+    background: torch.Tensor | None = None,
+    backend: str = "wgpu",
+    antialiased: bool = False,
+) -> RenderOutput:
+    """Render ``gaussians`` seen by ``camera``.
+
+    ``background`` is an RGB triple (default black) added as ``T · background``.
+    Returns float32 tensors on the Gaussians' device (the torch backend keeps their
+    dtype when it is float64, for gradient checks).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    device = gaussians.device
+    bg = torch.zeros(3) if background is None else torch.as_tensor(background).reshape(-1)
+    if bg.numel() != 3 or not torch.isfinite(bg).all():
+        raise ValueError(f"background must be a finite RGB triple, got {bg.tolist()}")
+    if backend == "torch":
+        dtype = torch.float64 if gaussians.means.dtype == torch.float64 else torch.float32
+        rgb, alpha, accum_depth = render_torch(gaussians, camera, bg, antialiased, dtype)
+    else:
+        background_rgb = tuple(float(v) for v in bg)
+        out = _WgpuRasterize.apply(
+            camera, background_rgb, antialiased, *gaussians.tensors().values()
+        )
+        rgb, alpha, accum_depth = out[..., :3], out[..., 3], out[..., 4]
+    drawn = alpha > MIN_ALPHA_FOR_DEPTH
+    depth = torch.where(
+        drawn, accum_depth / torch.where(drawn, alpha, torch.ones_like(alpha)),
+        torch.zeros_like(alpha),
+    )
+    return RenderOutput(rgb.to(device), alpha.to(device), depth.to(device))

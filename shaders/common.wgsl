@@ -1,0 +1,70 @@
+// Shared by every rasteriser shader (prepended by the host before compiling).
+
+struct RenderParams {
+    // World-to-camera rows; w holds the translation component.
+    rot_row0: vec4<f32>,
+    rot_row1: vec4<f32>,
+    rot_row2: vec4<f32>,
+    // Camera centre in world coordinates (w unused).
+    cam_pos: vec4<f32>,
+    // fx, fy, cx, cy in pixels.
+    intrinsics: vec4<f32>,
+    // Clamp limits of x/z and y/z for the EWA Jacobian (1.3 · tan(half fov)), unused, unused.
+    jacobian_limits: vec4<f32>,
+    background: vec4<f32>,
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    num_gaussians: u32,
+    sh_coeffs: u32,
+    antialiased: u32,
+    num_intersections: u32,
+}
+
+const TILE_SIZE: u32 = 16u;
+const NEAR_PLANE: f32 = 0.01;
+const LOW_PASS: f32 = 0.3;
+const MIN_LOG_SCALE: f32 = -12.0;
+const MAX_LOG_SCALE: f32 = 8.0;
+const ALPHA_MAX: f32 = 0.999;
+const ALPHA_MIN: f32 = 1.0 / 255.0;
+const T_MIN: f32 = 1e-4;
+// Pixels outside the 3-sigma ellipse are skipped: power = -0.5 * d^2 < -4.5.
+const POWER_MIN: f32 = -4.5;
+
+// Projected Gaussian, one per input Gaussian (culled ones have radius 0).
+struct Projected {
+    // mean2d.x, mean2d.y, opacity (after the antialiasing factor), camera z
+    xy_opacity_z: vec4<f32>,
+    // conic a, b, c (inverse 2D covariance) and the pixel radius
+    conic_radius: vec4<f32>,
+    // view-dependent colour, w unused
+    rgb: vec4<f32>,
+}
+
+fn is_finite_f32(x: f32) -> bool {
+    // Bit test: compilers may fold x != x away under fast-math assumptions.
+    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+fn all_finite3(v: vec3<f32>) -> bool {
+    return all((bitcast<vec3<u32>>(v) & vec3<u32>(0x7f800000u)) != vec3<u32>(0x7f800000u));
+}
+
+fn all_finite4(v: vec4<f32>) -> bool {
+    return all((bitcast<vec4<u32>>(v) & vec4<u32>(0x7f800000u)) != vec4<u32>(0x7f800000u));
+}
+
+// Linear workgroup index for dispatches split over x and y (x is at most 65535).
+fn linear_workgroup(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return wid.y * nwg.x + wid.x;
+}
+
+// Tile rectangle [min, max) touched by a projected Gaussian; both ends clamped to the grid.
+fn tile_rect(rp: RenderParams, xy: vec2<f32>, radius: f32) -> vec4<u32> {
+    let tiles = vec2<f32>(f32(rp.tiles_x), f32(rp.tiles_y));
+    let lo = clamp(floor((xy - vec2<f32>(radius)) / f32(TILE_SIZE)), vec2<f32>(0.0), tiles);
+    let hi = clamp(floor((xy + vec2<f32>(radius)) / f32(TILE_SIZE)) + 1.0, vec2<f32>(0.0), tiles);
+    return vec4<u32>(vec2<u32>(lo), vec2<u32>(hi));
+}

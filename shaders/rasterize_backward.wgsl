@@ -1,0 +1,160 @@
+// Backward of rasterize.wgsl: per tile, every pixel walks its contributors back to front
+// (T recovered by dividing out 1 - alpha, colour/depth behind accumulated as in 3DGS) and
+// produces gradients w.r.t. each Gaussian's 2D mean, conic, colour, opacity and depth.
+// They are summed over the tile's pixels in workgroup memory (float adds by a
+// compare-exchange loop on the u32 bits) and written, without global atomics, to the
+// intersection's own slot; project_backward.wgsl sums a Gaussian's slots.
+
+@group(0) @binding(0) var<uniform> params: RenderParams;
+@group(0) @binding(1) var<storage, read> projected: array<Projected>;
+@group(0) @binding(2) var<storage, read> sorted_slots: array<u32>;
+@group(0) @binding(3) var<storage, read> isect_gaussian: array<u32>;
+@group(0) @binding(4) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(5) var<storage, read> pixel_state: array<vec2<u32>>;
+@group(0) @binding(6) var<storage, read> v_pixels: array<f32>;
+@group(0) @binding(7) var<storage, read_write> isect_grads: array<f32>;
+
+const BATCH: u32 = 128u;
+// mean2d (2), conic (3), rgb (3), opacity, depth
+const GRAD_STRIDE: u32 = 10u;
+
+var<workgroup> batch_xy_opacity_z: array<vec4<f32>, 128>;
+var<workgroup> batch_conic: array<vec4<f32>, 128>;
+var<workgroup> batch_rgb: array<vec4<f32>, 128>;
+var<workgroup> batch_slot: array<u32, 128>;
+var<workgroup> batch_grads: array<atomic<u32>, 1280>;
+var<workgroup> max_end: atomic<u32>;
+var<workgroup> max_end_snapshot: u32;
+
+fn add_grad(idx: u32, value: f32) {
+    var old = atomicLoad(&batch_grads[idx]);
+    loop {
+        let new_bits = bitcast<u32>(bitcast<f32>(old) + value);
+        let result = atomicCompareExchangeWeak(&batch_grads[idx], old, new_bits);
+        if result.exchanged {
+            break;
+        }
+        old = result.old_value;
+    }
+}
+
+@compute @workgroup_size(16, 16)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy: vec3<u32>,
+        @builtin(local_invocation_index) lid: u32) {
+    let tile = wid.y * params.tiles_x + wid.x;
+    let px = wid.x * TILE_SIZE + lxy.x;
+    let py = wid.y * TILE_SIZE + lxy.y;
+    let inside = px < params.width && py < params.height;
+    let centre = vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
+    let range = ranges[tile];
+
+    var t_final = 1.0;
+    var contrib_end = range.x;
+    var v_rgb = vec3<f32>(0.0);
+    var v_alpha_out = 0.0;
+    var v_depth = 0.0;
+    if inside {
+        let pix = py * params.width + px;
+        let state = pixel_state[pix];
+        t_final = bitcast<f32>(state.x);
+        contrib_end = state.y;
+        v_rgb = vec3<f32>(v_pixels[pix * 5u], v_pixels[pix * 5u + 1u], v_pixels[pix * 5u + 2u]);
+        v_alpha_out = v_pixels[pix * 5u + 3u];
+        v_depth = v_pixels[pix * 5u + 4u];
+    }
+    // d rgb_out / d T_final = background and d alpha_out / d T_final = -1.
+    let v_t_final = dot(v_rgb, params.background.rgb) - v_alpha_out;
+
+    if lid == 0u {
+        atomicStore(&max_end, range.x);
+    }
+    workgroupBarrier();
+    atomicMax(&max_end, contrib_end);
+    workgroupBarrier();
+    if lid == 0u {
+        max_end_snapshot = atomicLoad(&max_end);
+    }
+    let end = workgroupUniformLoad(&max_end_snapshot);
+
+    var t = t_final;
+    var behind_rgb = vec3<f32>(0.0);
+    var behind_depth = 0.0;
+    var last_alpha = 0.0;
+    var last_rgb = vec3<f32>(0.0);
+    var last_depth = 0.0;
+
+    var batch_end = end;
+    while batch_end > range.x {
+        let batch_start = max(range.x, select(0u, batch_end - BATCH, batch_end >= BATCH));
+        let count = batch_end - batch_start;
+        if lid < count {
+            let slot = sorted_slots[batch_start + lid];
+            let p = projected[isect_gaussian[slot]];
+            batch_xy_opacity_z[lid] = p.xy_opacity_z;
+            batch_conic[lid] = p.conic_radius;
+            batch_rgb[lid] = p.rgb;
+            batch_slot[lid] = slot;
+        }
+        for (var k = lid; k < BATCH * GRAD_STRIDE; k += 256u) {
+            atomicStore(&batch_grads[k], 0u);
+        }
+        workgroupBarrier();
+        for (var kk = 0u; kk < count; kk++) {
+            let k = count - 1u - kk;
+            if batch_start + k >= contrib_end {
+                continue;
+            }
+            let xyoz = batch_xy_opacity_z[k];
+            let conic = batch_conic[k].xyz;
+            let d = xyoz.xy - centre;
+            let power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) - conic.y * d.x * d.y;
+            if power > 0.0 || power < POWER_MIN {
+                continue;
+            }
+            let g = exp(power);
+            let raw_alpha = xyoz.z * g;
+            let alpha = min(ALPHA_MAX, raw_alpha);
+            if alpha < ALPHA_MIN {
+                continue;
+            }
+            t = t / (1.0 - alpha);
+            behind_rgb = last_alpha * last_rgb + (1.0 - last_alpha) * behind_rgb;
+            behind_depth = last_alpha * last_depth + (1.0 - last_alpha) * behind_depth;
+            let rgb = batch_rgb[k].rgb;
+            let weight = alpha * t;
+            let v_alpha = t * (dot(rgb - behind_rgb, v_rgb) + (xyoz.w - behind_depth) * v_depth)
+                - t_final / (1.0 - alpha) * v_t_final;
+            // The min() at 0.999 passes no gradient when it clamps.
+            var v_g = 0.0;
+            var v_opacity = 0.0;
+            if raw_alpha <= ALPHA_MAX {
+                v_g = xyoz.z * v_alpha;
+                v_opacity = g * v_alpha;
+            }
+            let v_power = g * v_g;
+            let base = k * GRAD_STRIDE;
+            add_grad(base, -v_power * (conic.x * d.x + conic.y * d.y));
+            add_grad(base + 1u, -v_power * (conic.y * d.x + conic.z * d.y));
+            add_grad(base + 2u, -0.5 * v_power * d.x * d.x);
+            add_grad(base + 3u, -v_power * d.x * d.y);
+            add_grad(base + 4u, -0.5 * v_power * d.y * d.y);
+            add_grad(base + 5u, weight * v_rgb.r);
+            add_grad(base + 6u, weight * v_rgb.g);
+            add_grad(base + 7u, weight * v_rgb.b);
+            add_grad(base + 8u, v_opacity);
+            add_grad(base + 9u, weight * v_depth);
+            last_alpha = alpha;
+            last_rgb = rgb;
+            last_depth = xyoz.w;
+        }
+        workgroupBarrier();
+        if lid < count {
+            let dst = batch_slot[lid] * GRAD_STRIDE;
+            for (var c = 0u; c < GRAD_STRIDE; c++) {
+                isect_grads[dst + c] = bitcast<f32>(atomicLoad(&batch_grads[lid * GRAD_STRIDE + c]));
+            }
+        }
+        workgroupBarrier();
+        batch_end = batch_start;
+    }
+}

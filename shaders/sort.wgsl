@@ -1,0 +1,136 @@
+// One 4-bit pass of a stable LSD radix sort of (key, value) pairs, in two dispatches
+// around a prefix sum (scan.wgsl) of the digit counts:
+// `count_digits`: per block of 1024 keys, a histogram of the 16 digits, stored
+//   digit-major (counts[digit * num_blocks + block]) so that its exclusive scan is each
+//   (digit, block)'s first output slot;
+// `scatter`: each block writes its keys in input order. Ranks within a block come from a
+//   workgroup scan of one-hot digit flags packed as sixteen 16-bit counters, so the pass
+//   is stable without subgroup operations or any assumption about subgroup size.
+
+struct SortParams {
+    num_keys: u32,
+    shift: u32,
+    num_blocks: u32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> sort_params: SortParams;
+@group(0) @binding(1) var<storage, read> keys_in: array<u32>;
+@group(0) @binding(2) var<storage, read> vals_in: array<u32>;
+@group(0) @binding(3) var<storage, read_write> counts: array<u32>;
+@group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
+@group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
+
+const SORT_THREADS: u32 = 256u;
+const SORT_ROUNDS: u32 = 4u;
+const SORT_BLOCK: u32 = 1024u;
+const DIGITS: u32 = 16u;
+
+var<workgroup> histogram: array<atomic<u32>, 16>;
+var<workgroup> flags_lo: array<vec4<u32>, 256>;
+var<workgroup> flags_hi: array<vec4<u32>, 256>;
+var<workgroup> digit_base: array<u32, 16>;
+
+fn digit_of(key: u32) -> u32 {
+    return (key >> sort_params.shift) & 0xfu;
+}
+
+@compute @workgroup_size(256)
+fn count_digits(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                @builtin(local_invocation_index) lid: u32) {
+    let block = linear_workgroup(wid, nwg);
+    if lid < DIGITS {
+        atomicStore(&histogram[lid], 0u);
+    }
+    workgroupBarrier();
+    if block < sort_params.num_blocks {
+        for (var r = 0u; r < SORT_ROUNDS; r++) {
+            let idx = block * SORT_BLOCK + r * SORT_THREADS + lid;
+            if idx < sort_params.num_keys {
+                atomicAdd(&histogram[digit_of(keys_in[idx])], 1u);
+            }
+        }
+    }
+    workgroupBarrier();
+    if lid < DIGITS && block < sort_params.num_blocks {
+        counts[lid * sort_params.num_blocks + block] = atomicLoad(&histogram[lid]);
+    }
+}
+
+// Sixteen 16-bit counters in eight u32 words: digit d lives in word d / 2, half d % 2.
+fn one_hot(digit: u32) -> array<vec4<u32>, 2> {
+    var packed = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
+    let word = digit >> 1u;
+    let bit = 1u << ((digit & 1u) * 16u);
+    if word < 4u {
+        packed[0][word] = bit;
+    } else {
+        packed[1][word - 4u] = bit;
+    }
+    return packed;
+}
+
+fn counter(packed_in: array<vec4<u32>, 2>, digit: u32) -> u32 {
+    var packed = packed_in;
+    let word = digit >> 1u;
+    var w: u32;
+    if word < 4u {
+        w = packed[0][word];
+    } else {
+        w = packed[1][word - 4u];
+    }
+    return (w >> ((digit & 1u) * 16u)) & 0xffffu;
+}
+
+@compute @workgroup_size(256)
+fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) lid: u32) {
+    let block = linear_workgroup(wid, nwg);
+    // Uniform per workgroup, so the early return keeps barriers in uniform control flow.
+    if block >= sort_params.num_blocks {
+        return;
+    }
+    if lid < DIGITS {
+        digit_base[lid] = counts[lid * sort_params.num_blocks + block];
+    }
+    // Elements of this block already placed, per digit (same in every invocation).
+    var placed = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
+    for (var r = 0u; r < SORT_ROUNDS; r++) {
+        let idx = block * SORT_BLOCK + r * SORT_THREADS + lid;
+        let valid = idx < sort_params.num_keys;
+        var key = 0u;
+        var digit = 0u;
+        var mine = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
+        if valid {
+            key = keys_in[idx];
+            digit = digit_of(key);
+            mine = one_hot(digit);
+        }
+        flags_lo[lid] = mine[0];
+        flags_hi[lid] = mine[1];
+        workgroupBarrier();
+        for (var offset = 1u; offset < SORT_THREADS; offset <<= 1u) {
+            var add_lo = vec4<u32>(0u);
+            var add_hi = vec4<u32>(0u);
+            if lid >= offset {
+                add_lo = flags_lo[lid - offset];
+                add_hi = flags_hi[lid - offset];
+            }
+            workgroupBarrier();
+            flags_lo[lid] += add_lo;
+            flags_hi[lid] += add_hi;
+            workgroupBarrier();
+        }
+        let inclusive = array<vec4<u32>, 2>(flags_lo[lid], flags_hi[lid]);
+        let totals = array<vec4<u32>, 2>(flags_lo[SORT_THREADS - 1u], flags_hi[SORT_THREADS - 1u]);
+        if valid {
+            let rank = counter(inclusive, digit) - 1u;
+            let dst = digit_base[digit] + counter(placed, digit) + rank;
+            keys_out[dst] = key;
+            vals_out[dst] = vals_in[idx];
+        }
+        placed[0] += totals[0];
+        placed[1] += totals[1];
+        workgroupBarrier();
+    }
+}
