@@ -98,6 +98,8 @@ pub struct ViewerApp {
     pose_text: String,
     status: String,
     frame_seconds: f64,
+    /// Where the scene was drawn in the last pass, in points.
+    view_rect: egui::Rect,
 }
 
 impl ViewerApp {
@@ -126,6 +128,7 @@ impl ViewerApp {
             pose_text: String::new(),
             status: String::new(),
             frame_seconds: 0.0,
+            view_rect: egui::Rect::NOTHING,
             renderer: None,
         };
         match renderer {
@@ -186,6 +189,11 @@ impl ViewerApp {
     /// The last frame drawn, at render resolution.
     pub fn last_frame(&self) -> Option<&RgbaImage> {
         self.last_frame.as_ref()
+    }
+
+    /// Where the scene was drawn in the last pass, in points.
+    pub fn view_rect(&self) -> egui::Rect {
+        self.view_rect
     }
 
     pub fn set_render_scale(&mut self, scale: f32) {
@@ -319,7 +327,7 @@ impl ViewerApp {
     fn side_panel(&mut self, ui: &mut egui::Ui) {
         ui.heading("pano4d-view");
         if let Some(open) = &self.opened {
-            ui.label(&open.scene.name);
+            ui.label(open.scene.name.as_str());
         }
         ui.separator();
         egui::Grid::new("stats").num_columns(2).show(ui, |ui| {
@@ -441,6 +449,7 @@ impl ViewerApp {
 
     fn view(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
         let rect = ui.available_rect_before_wrap();
+        self.view_rect = rect;
         let response = ui.interact(rect, ui.id().with("view"), egui::Sense::click_and_drag());
         if response.dragged() {
             let delta = response.drag_delta();
@@ -466,7 +475,7 @@ impl ViewerApp {
         if let Some(error) = &self.error {
             ui.scope_builder(egui::UiBuilder::new().max_rect(rect.shrink(16.0)), |ui| {
                 ui.heading("Cannot show the scene");
-                ui.colored_label(ui.visuals().error_fg_color, error);
+                ui.colored_label(ui.visuals().error_fg_color, error.as_str());
             });
             return;
         }
