@@ -180,6 +180,35 @@ def test_ply4d_lazy_open(tmp_path: Path) -> None:
         f.dynamic(-1)
 
 
+def test_streaming_writer_matches_write(tmp_path: Path) -> None:
+    scene = make_scene(2, [3, 0, 4])
+    ply4d.write(tmp_path / "whole.ply4d", scene)
+    streamed = tmp_path / "streamed.ply4d"
+    with ply4d.Ply4dWriter(streamed, scene.static) as w:
+        for g in scene.dynamic:
+            w.push(g)
+        w.finish(scene.timestamps, scene.fps, scene.camera, scene.provenance, scene.extra)
+        with pytest.raises(ValueError, match="already finished"):
+            w.push(scene.dynamic[0])
+    assert streamed.read_bytes() == (tmp_path / "whole.ply4d").read_bytes()
+
+    # An exception inside the block abandons the file: nothing new appears.
+    with (
+        pytest.raises(RuntimeError),
+        ply4d.Ply4dWriter(tmp_path / "abandoned.ply4d", scene.static) as w,
+    ):
+        w.push(scene.dynamic[0])
+        raise RuntimeError("pipeline failed")
+    assert sorted(os.listdir(tmp_path)) == ["streamed.ply4d", "whole.ply4d"]
+
+    with ply4d.Ply4dWriter(tmp_path / "x.ply4d", scene.static) as w:
+        with pytest.raises(ValueError, match="SH degree 3, above the static set's 2"):
+            w.push(random_gaussians(2, 3, seed=0))
+        w.push(scene.dynamic[0])
+        with pytest.raises(ValueError, match="2 timestamps but 1 dynamic sets"):
+            w.finish([0.0, 1.0], fps=1.0)
+
+
 def test_ply4d_pads_lower_sh_degrees(tmp_path: Path) -> None:
     scene = make_scene(2, [3])
     scene.dynamic[0] = random_gaussians(3, 0, seed=5)

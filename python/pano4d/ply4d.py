@@ -17,7 +17,17 @@ from typing import Any
 from pano4d import __version__, _core
 from pano4d.gaussians import Gaussians
 
-__all__ = ["Ply4dFile", "Scene4D", "export", "open", "read", "read_ply", "write", "write_ply"]
+__all__ = [
+    "Ply4dFile",
+    "Ply4dWriter",
+    "Scene4D",
+    "export",
+    "open",
+    "read",
+    "read_ply",
+    "write",
+    "write_ply",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -79,6 +89,86 @@ def _check_time(t: int, num_times: int) -> None:
         raise IndexError(f"timestamp index {t} out of range: the scene has {num_times}")
 
 
+def _meta_json(
+    timestamps: list[float],
+    fps: float,
+    camera: dict[str, Any],
+    provenance: dict[str, Any],
+    extra: dict[str, Any],
+) -> str:
+    unknown = set(camera) - {"position", "params"}
+    if unknown:
+        raise ValueError(
+            f"camera keys must be 'position' and 'params', got extra keys {sorted(unknown)}"
+        )
+    camera = {**_default_camera(), **camera}
+    meta = {
+        "timestamps": [float(t) for t in timestamps],
+        "fps": float(fps),
+        "camera": {"position": [float(v) for v in camera["position"]], "params": camera["params"]},
+        "provenance": {**_default_provenance(), **provenance},
+        "extra": extra,
+    }
+    if not all(math.isfinite(v) for v in [*meta["timestamps"], meta["fps"]]):
+        raise ValueError("fps and timestamps must be finite")
+    try:
+        return json.dumps(meta, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"scene metadata is not JSON-serialisable: {e}") from e
+
+
+class Ply4dWriter:
+    """Writes a ``.ply4d`` one set at a time, so only one set is held in memory::
+
+        with ply4d.Ply4dWriter(path, static) as w:
+            for g in dynamic_sets:
+                w.push(g)
+            w.finish(timestamps, fps)
+
+    Every set is stored at the static set's SH degree (lower degrees are zero-padded).
+    A writer closed without ``finish`` (or left by an exception) writes nothing.
+    """
+
+    def __init__(self, path: PathLike, static: Gaussians) -> None:
+        self.sh_degree = static.sh_degree
+        self.num_times = 0
+        self._writer = _core.Ply4dWriter(os.fspath(path), static.to_numpy())
+
+    def push(self, g: Gaussians) -> None:
+        """Append the dynamic set of the next timestamp."""
+        if g.sh_degree > self.sh_degree:
+            raise ValueError(
+                f"dynamic set {self.num_times} has SH degree {g.sh_degree}, above the static "
+                f"set's {self.sh_degree}"
+            )
+        self._writer.push(g.with_sh_degree(self.sh_degree).to_numpy())
+        self.num_times += 1
+
+    def finish(
+        self,
+        timestamps: list[float],
+        fps: float,
+        camera: dict[str, Any] | None = None,
+        provenance: dict[str, Any] | None = None,
+        extra: dict[str, Any] | None = None,
+    ) -> None:
+        """Write the file (atomically); ``timestamps`` has one entry per pushed set."""
+        self._finish(_meta_json(timestamps, fps, camera or {}, provenance or {}, extra or {}))
+
+    def _finish(self, meta_json: str) -> None:
+        self._writer.finish(meta_json)
+
+    def close(self) -> None:
+        """Abandon the file unless ``finish`` was called."""
+        self._writer.close()
+
+    def __enter__(self) -> Ply4dWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
 def write(path: PathLike, scene: Scene4D) -> None:
     """Write ``scene`` as a ``.ply4d`` file.
 
@@ -86,31 +176,12 @@ def write(path: PathLike, scene: Scene4D) -> None:
     sections of a file share one degree.
     """
     degree = max([scene.static.sh_degree] + [g.sh_degree for g in scene.dynamic])
-    unknown = set(scene.camera) - {"position", "params"}
-    if unknown:
-        raise ValueError(
-            f"Scene4D.camera keys must be 'position' and 'params', got extra keys {sorted(unknown)}"
-        )
-    camera = {**_default_camera(), **scene.camera}
-    meta = {
-        "timestamps": [float(t) for t in scene.timestamps],
-        "fps": float(scene.fps),
-        "camera": {"position": [float(v) for v in camera["position"]], "params": camera["params"]},
-        "provenance": {**_default_provenance(), **scene.provenance},
-        "extra": scene.extra,
-    }
-    if not all(math.isfinite(v) for v in [*meta["timestamps"], meta["fps"]]):
-        raise ValueError("Scene4D.fps and timestamps must be finite")
-    try:
-        meta_json = json.dumps(meta, allow_nan=False)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"Scene4D metadata is not JSON-serialisable: {e}") from e
-    _core.write_ply4d(
-        os.fspath(path),
-        scene.static.with_sh_degree(degree).to_numpy(),
-        [g.with_sh_degree(degree).to_numpy() for g in scene.dynamic],
-        meta_json,
-    )
+    # Metadata is checked before any set is encoded.
+    meta = _meta_json(scene.timestamps, scene.fps, scene.camera, scene.provenance, scene.extra)
+    with Ply4dWriter(path, scene.static.with_sh_degree(degree)) as writer:
+        for g in scene.dynamic:
+            writer.push(g)
+        writer._finish(meta)
 
 
 class Ply4dFile:

@@ -14,7 +14,7 @@ use pyo3::types::PyDict;
 
 use crate::gaussians::{sh_coeffs, GaussianSet};
 use crate::ply::{self, FileError};
-use crate::ply4d::{self, Ply4dReader, Scene4d, SceneMeta};
+use crate::ply4d::{Ply4dReader, Ply4dWriter, SceneMeta};
 
 fn to_py_err(e: FileError) -> PyErr {
     match e {
@@ -117,23 +117,52 @@ fn write_ply(py: Python<'_>, path: PathBuf, arrays: &Bound<'_, PyDict>) -> PyRes
     py.detach(|| ply::write_ply(&path, &set)).map_err(to_py_err)
 }
 
-/// Writes a `.ply4d` atomically. `meta_json` holds timestamps, fps, camera, provenance, extra.
-#[pyfunction]
-fn write_ply4d(
-    py: Python<'_>,
-    path: PathBuf,
-    static_set: &Bound<'_, PyDict>,
-    dynamic: Vec<Bound<'_, PyDict>>,
-    meta_json: &str,
-) -> PyResult<()> {
-    let meta: SceneMeta = serde_json::from_str(meta_json)
-        .map_err(|e| PyValueError::new_err(format!("invalid .ply4d scene metadata: {e}")))?;
-    let scene = Scene4d {
-        static_set: set_from_dict(static_set)?,
-        dynamic: dynamic.iter().map(set_from_dict).collect::<PyResult<_>>()?,
-        meta,
-    };
-    py.detach(|| ply4d::write(&path, &scene)).map_err(to_py_err)
+/// Streams a `.ply4d`: the static set first, then one dynamic set per `push`, then
+/// `finish(meta_json)` with timestamps, fps, camera, provenance and extra as JSON.
+/// A writer closed or dropped before `finish` leaves no file behind.
+#[pyclass(name = "Ply4dWriter", module = "pano4d._core")]
+struct PyPly4dWriter {
+    inner: Option<Ply4dWriter>,
+}
+
+fn closed_writer() -> PyErr {
+    PyValueError::new_err("the .ply4d writer is already finished or closed")
+}
+
+impl PyPly4dWriter {
+    fn writer(&mut self) -> PyResult<&mut Ply4dWriter> {
+        self.inner.as_mut().ok_or_else(closed_writer)
+    }
+}
+
+#[pymethods]
+impl PyPly4dWriter {
+    #[new]
+    fn create(py: Python<'_>, path: PathBuf, static_set: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let set = set_from_dict(static_set)?;
+        let inner = py
+            .detach(|| Ply4dWriter::create(&path, &set))
+            .map_err(to_py_err)?;
+        Ok(Self { inner: Some(inner) })
+    }
+
+    fn push(&mut self, py: Python<'_>, arrays: &Bound<'_, PyDict>) -> PyResult<()> {
+        let set = set_from_dict(arrays)?;
+        let writer = self.writer()?;
+        py.detach(|| writer.push(&set)).map_err(to_py_err)
+    }
+
+    fn finish(&mut self, py: Python<'_>, meta_json: &str) -> PyResult<()> {
+        let meta: SceneMeta = serde_json::from_str(meta_json)
+            .map_err(|e| PyValueError::new_err(format!("invalid .ply4d scene metadata: {e}")))?;
+        let writer = self.inner.take().ok_or_else(closed_writer)?;
+        py.detach(|| writer.finish(meta)).map_err(to_py_err)
+    }
+
+    /// Abandons an unfinished writer (its scratch data is deleted); no-op once finished.
+    fn close(&mut self) {
+        self.inner = None;
+    }
 }
 
 /// An open, memory-mapped `.ply4d` file; sections are decoded on request.
@@ -192,7 +221,7 @@ impl PyPly4dReader {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_ply, m)?)?;
     m.add_function(wrap_pyfunction!(write_ply, m)?)?;
-    m.add_function(wrap_pyfunction!(write_ply4d, m)?)?;
     m.add_class::<PyPly4dReader>()?;
+    m.add_class::<PyPly4dWriter>()?;
     Ok(())
 }
