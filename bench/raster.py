@@ -26,7 +26,7 @@ from pano4d.render import adapter_info, render
 
 OUT = Path(__file__).resolve().parent / "out" / "raster.json"
 # Dense torch work (pixels × Gaussians) timed directly / by extrapolation at most.
-TORCH_DIRECT_LIMIT = 2e8
+TORCH_DIRECT_LIMIT = 5e7
 TORCH_EXTRAPOLATE_LIMIT = 3e11
 
 

@@ -4,8 +4,8 @@
 //   digit-major (counts[digit * num_blocks + block]) so that its exclusive scan is each
 //   (digit, block)'s first output slot;
 // `scatter`: each block writes its keys in input order. Ranks within a block come from a
-//   workgroup scan of one-hot digit flags packed as sixteen 16-bit counters, so the pass
-//   is stable without subgroup operations or any assumption about subgroup size.
+//   workgroup scan of per-invocation digit counts packed as sixteen 16-bit counters, so
+//   the pass is stable without subgroup operations or any assumption about subgroup size.
 
 struct SortParams {
     num_keys: u32,
@@ -93,44 +93,45 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     if lid < DIGITS {
         digit_base[lid] = counts[lid * sort_params.num_blocks + block];
     }
-    // Elements of this block already placed, per digit (same in every invocation).
-    var placed = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
-    for (var r = 0u; r < SORT_ROUNDS; r++) {
-        let idx = block * SORT_BLOCK + r * SORT_THREADS + lid;
-        let valid = idx < sort_params.num_keys;
-        var key = 0u;
-        var digit = 0u;
-        var mine = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
-        if valid {
-            key = keys_in[idx];
-            digit = digit_of(key);
-            mine = one_hot(digit);
+    // Each invocation owns SORT_ROUNDS consecutive keys, so block order is
+    // (invocation, element) order and one workgroup scan ranks the whole block.
+    let first = block * SORT_BLOCK + lid * SORT_ROUNDS;
+    var keys: array<u32, 4>;
+    var local_counts = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
+    for (var e = 0u; e < SORT_ROUNDS; e++) {
+        if first + e < sort_params.num_keys {
+            keys[e] = keys_in[first + e];
+            let hot = one_hot(digit_of(keys[e]));
+            local_counts[0] += hot[0];
+            local_counts[1] += hot[1];
         }
-        flags_lo[lid] = mine[0];
-        flags_hi[lid] = mine[1];
+    }
+    flags_lo[lid] = local_counts[0];
+    flags_hi[lid] = local_counts[1];
+    workgroupBarrier();
+    for (var offset = 1u; offset < SORT_THREADS; offset <<= 1u) {
+        var add_lo = vec4<u32>(0u);
+        var add_hi = vec4<u32>(0u);
+        if lid >= offset {
+            add_lo = flags_lo[lid - offset];
+            add_hi = flags_hi[lid - offset];
+        }
         workgroupBarrier();
-        for (var offset = 1u; offset < SORT_THREADS; offset <<= 1u) {
-            var add_lo = vec4<u32>(0u);
-            var add_hi = vec4<u32>(0u);
-            if lid >= offset {
-                add_lo = flags_lo[lid - offset];
-                add_hi = flags_hi[lid - offset];
-            }
-            workgroupBarrier();
-            flags_lo[lid] += add_lo;
-            flags_hi[lid] += add_hi;
-            workgroupBarrier();
-        }
-        let inclusive = array<vec4<u32>, 2>(flags_lo[lid], flags_hi[lid]);
-        let totals = array<vec4<u32>, 2>(flags_lo[SORT_THREADS - 1u], flags_hi[SORT_THREADS - 1u]);
-        if valid {
-            let rank = counter(inclusive, digit) - 1u;
-            let dst = digit_base[digit] + counter(placed, digit) + rank;
-            keys_out[dst] = key;
-            vals_out[dst] = vals_in[idx];
-        }
-        placed[0] += totals[0];
-        placed[1] += totals[1];
+        flags_lo[lid] += add_lo;
+        flags_hi[lid] += add_hi;
         workgroupBarrier();
+    }
+    // Exclusive prefix per digit = inclusive - own counts; then rank within the thread.
+    var seen = array<vec4<u32>, 2>(flags_lo[lid] - local_counts[0], flags_hi[lid] - local_counts[1]);
+    for (var e = 0u; e < SORT_ROUNDS; e++) {
+        if first + e < sort_params.num_keys {
+            let digit = digit_of(keys[e]);
+            let dst = digit_base[digit] + counter(seen, digit);
+            keys_out[dst] = keys[e];
+            vals_out[dst] = vals_in[first + e];
+            let hot = one_hot(digit);
+            seen[0] += hot[0];
+            seen[1] += hot[1];
+        }
     }
 }

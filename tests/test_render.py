@@ -4,6 +4,9 @@ reference against finite differences, extreme inputs, and a real 3DGS scene."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +73,7 @@ def test_forward_matches_reference(size: tuple[int, int], inside: bool) -> None:
         assert a.rgb.shape == (h, w, 3) and a.alpha.shape == (h, w) and a.depth.shape == (h, w)
         assert a.rgb.dtype == torch.float32
         assert_outputs_close(a, b)
-    assert float(a.alpha.max()) > 0.2  # the scene is actually in view
+    assert float(a.alpha.max()) > 0.1  # the scene is actually in view
 
 
 def test_sh_degrees_and_off_centre_principal_point() -> None:
@@ -98,8 +101,14 @@ def gradients(g: Gaussians, cam: Camera, backend: str, weights, **kw) -> dict[st
 
 
 @pytest.mark.parametrize("antialiased", [False, True])
-def test_gradients_match_reference(antialiased: bool) -> None:
-    g = random_scene(60, seed=7, sh_degree=3, log_scale=(-2.5, -1.0))
+@pytest.mark.parametrize("inside", [False, True])
+def test_gradients_match_reference(antialiased: bool, inside: bool) -> None:
+    if inside:
+        # Gaussians all around the camera: Jacobian clamps, culling behind, termination.
+        g = random_scene(200, seed=17, sh_degree=3, centre=(0.0, 0.0, 0.0), spread=3.0,
+                         log_scale=(-2.0, -0.5))
+    else:
+        g = random_scene(60, seed=7, sh_degree=3, log_scale=(-2.5, -1.0))
     cam = camera(32, 24)
     gen = torch.Generator().manual_seed(3)
     weights = [torch.rand(24, 32, 3, generator=gen), torch.rand(24, 32, generator=gen),
@@ -109,9 +118,9 @@ def test_gradients_match_reference(antialiased: bool) -> None:
     ref = gradients(g.to(torch.float64), cam, "torch", weights, background=bg,
                     antialiased=antialiased)
     for name, r in ref.items():
+        assert torch.linalg.norm(r) > 0, name
         err = float(torch.linalg.norm(got[name].double() - r) / torch.linalg.norm(r))
         assert err <= 1e-3, f"{name}: relative error {err:.2e}"
-        assert torch.linalg.norm(r) > 0, name
 
 
 def test_reference_gradients_match_finite_differences() -> None:
@@ -171,7 +180,7 @@ def test_extremes_stay_finite_and_agree() -> None:
 
 
 def test_screen_filling_opaque_gaussian_covers_the_screen() -> None:
-    g = one((2.0, 0.0, 0.0), log_scale=2.0, opacity=1 - 1e-6, rgb_dc=1.0)
+    g = one((2.0, 0.0, 0.0), log_scale=3.0, opacity=1 - 1e-6, rgb_dc=1.0)
     out = render(g, camera(64, 48))
     assert (out.alpha > 0.99).all()
     assert torch.allclose(out.depth, torch.full_like(out.depth, 2.0), atol=1e-3)
@@ -210,6 +219,18 @@ def test_adapter_info_names_the_adapter() -> None:
     info = adapter_info()
     assert set(info) == {"name", "backend", "device_type", "driver"}
     assert info["name"]
+
+
+def test_adapter_preference_that_matches_nothing_is_a_clear_error() -> None:
+    # The renderer is process-wide, so the preference is tried in a fresh process.
+    code = (
+        "from pano4d.render import adapter_info\n"
+        "try:\n    adapter_info()\nexcept RuntimeError as e:\n    print(e)\n"
+    )
+    env = {**os.environ, "PANO4D_ADAPTER": "no-such-adapter"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert "matches no adapter" in out.stdout and "mesa-vulkan-drivers" in out.stdout
 
 
 def test_gradients_come_back_in_the_input_dtype() -> None:

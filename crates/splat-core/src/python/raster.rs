@@ -5,7 +5,7 @@
 
 use std::sync::{Mutex, OnceLock};
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -23,7 +23,9 @@ fn to_py(e: RasterError) -> PyErr {
 }
 
 /// Runs `f` on the shared renderer, creating it on first use.
-fn with_renderer<T>(f: impl FnOnce(&mut Renderer) -> Result<T, RasterError>) -> Result<T, RasterError> {
+fn with_renderer<T>(
+    f: impl FnOnce(&mut Renderer) -> Result<T, RasterError>,
+) -> Result<T, RasterError> {
     let cell = RENDERER.get_or_init(|| Mutex::new(None));
     // A panic in another call cannot leave the renderer half-updated in a way that
     // matters: every call rewrites the buffers it reads.
@@ -34,11 +36,18 @@ fn with_renderer<T>(f: impl FnOnce(&mut Renderer) -> Result<T, RasterError>) -> 
     f(guard.as_mut().expect("created above"))
 }
 
-fn camera_from(k: &PyReadonlyArray2<'_, f64>, w2c: &PyReadonlyArray2<'_, f64>, width: u32, height: u32) -> PyResult<Camera> {
+fn camera_from(
+    k: &PyReadonlyArray2<'_, f64>,
+    w2c: &PyReadonlyArray2<'_, f64>,
+    width: u32,
+    height: u32,
+) -> PyResult<Camera> {
     let k = k.as_array();
     let w2c = w2c.as_array();
     if k.shape() != [3, 3] || w2c.shape()[1] != 4 || !(3..=4).contains(&w2c.shape()[0]) {
-        return Err(PyValueError::new_err("K must be 3x3 and world_to_cam 3x4 or 4x4"));
+        return Err(PyValueError::new_err(
+            "K must be 3x3 and world_to_cam 3x4 or 4x4",
+        ));
     }
     let kk = std::array::from_fn(|r| std::array::from_fn(|c| k[[r, c]]));
     let ww = std::array::from_fn(|r| std::array::from_fn(|c| w2c[[r, c]]));
@@ -88,7 +97,10 @@ fn render_forward<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<f32>>, u32)> {
     let camera = camera_from(&k, &world_to_cam, width, height)?;
     let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
-    let settings = RenderSettings { background, antialiased };
+    let settings = RenderSettings {
+        background,
+        antialiased,
+    };
     let (pixels, isects) = py
         .detach(|| with_renderer(|r| r.forward(&input, &camera, &settings)))
         .map_err(to_py)?;
@@ -118,7 +130,10 @@ fn render_backward<'py>(
     let camera = camera_from(&k, &world_to_cam, width, height)?;
     let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
     let v = slice("v_pixels", &v_pixels)?;
-    let settings = RenderSettings { background, antialiased };
+    let settings = RenderSettings {
+        background,
+        antialiased,
+    };
     let grads = py
         .detach(|| with_renderer(|r| r.backward(&input, &camera, &settings, v)))
         .map_err(to_py)?;
@@ -126,7 +141,10 @@ fn render_backward<'py>(
     out.set_item("means", PyArray1::from_vec(py, grads.means))?;
     out.set_item("log_scales", PyArray1::from_vec(py, grads.log_scales))?;
     out.set_item("quats", PyArray1::from_vec(py, grads.quats))?;
-    out.set_item("opacity_logits", PyArray1::from_vec(py, grads.opacity_logits))?;
+    out.set_item(
+        "opacity_logits",
+        PyArray1::from_vec(py, grads.opacity_logits),
+    )?;
     out.set_item("sh", PyArray1::from_vec(py, grads.sh))?;
     Ok(out)
 }

@@ -30,12 +30,17 @@ pub struct GpuContext {
 fn is_gpu(info: &wgpu::AdapterInfo) -> bool {
     matches!(
         info.device_type,
-        wgpu::DeviceType::DiscreteGpu | wgpu::DeviceType::IntegratedGpu | wgpu::DeviceType::VirtualGpu
+        wgpu::DeviceType::DiscreteGpu
+            | wgpu::DeviceType::IntegratedGpu
+            | wgpu::DeviceType::VirtualGpu
     )
 }
 
 /// Picks an adapter by the `PANO4D_ADAPTER` preference (None: GPU first, then CPU).
-fn choose(adapters: Vec<wgpu::Adapter>, preference: Option<&str>) -> Result<wgpu::Adapter, RasterError> {
+fn choose(
+    adapters: Vec<wgpu::Adapter>,
+    preference: Option<&str>,
+) -> Result<wgpu::Adapter, RasterError> {
     let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
     let rank = |info: &wgpu::AdapterInfo| match info.device_type {
         wgpu::DeviceType::DiscreteGpu => 0,
@@ -46,7 +51,10 @@ fn choose(adapters: Vec<wgpu::Adapter>, preference: Option<&str>) -> Result<wgpu
     };
     let mut candidates: Vec<wgpu::Adapter> = match preference.map(str::to_lowercase).as_deref() {
         None | Some("") => adapters,
-        Some("gpu") => adapters.into_iter().filter(|a| is_gpu(&a.get_info())).collect(),
+        Some("gpu") => adapters
+            .into_iter()
+            .filter(|a| is_gpu(&a.get_info()))
+            .collect(),
         Some("cpu") => adapters
             .into_iter()
             .filter(|a| a.get_info().device_type == wgpu::DeviceType::Cpu)
@@ -57,12 +65,15 @@ fn choose(adapters: Vec<wgpu::Adapter>, preference: Option<&str>) -> Result<wgpu
             .collect(),
     };
     candidates.sort_by_key(|a| rank(&a.get_info()));
-    candidates.into_iter().next().ok_or_else(|| match preference {
-        Some(p) if !p.is_empty() => RasterError::NoAdapter(format!(
-            "{ADAPTER_ENV}={p:?} matches no adapter (available: {names:?}); {NO_DRIVER_HINT}"
-        )),
-        _ => RasterError::NoAdapter(NO_DRIVER_HINT.to_string()),
-    })
+    candidates
+        .into_iter()
+        .next()
+        .ok_or_else(|| match preference {
+            Some(p) if !p.is_empty() => RasterError::NoAdapter(format!(
+                "{ADAPTER_ENV}={p:?} matches no adapter (available: {names:?}); {NO_DRIVER_HINT}"
+            )),
+            _ => RasterError::NoAdapter(NO_DRIVER_HINT.to_string()),
+        })
 }
 
 impl GpuContext {
@@ -96,7 +107,9 @@ impl GpuContext {
                 name: info.name.clone(),
                 backend: format!("{:?}", info.backend).to_lowercase(),
                 device_type: format!("{:?}", info.device_type),
-                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+                driver: format!("{} {}", info.driver, info.driver_info)
+                    .trim()
+                    .to_string(),
             },
         })
     }

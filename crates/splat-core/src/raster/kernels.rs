@@ -102,22 +102,24 @@ pub(crate) fn scratch_len(len: u32) -> (u32, u32) {
 
 impl SortKernels {
     pub(crate) fn new(device: &wgpu::Device) -> Self {
-        let mut scan = compile(
+        let scan_entries = ["scan_blocks", "scan_block_sums", "add_block_sums"];
+        let scan = compile(device, "scan", &[COMMON_WGSL, SCAN_WGSL], &scan_entries);
+        let sort = compile(
             device,
-            "scan",
-            &[COMMON_WGSL, SCAN_WGSL],
-            &["scan_blocks", "scan_block_sums", "add_block_sums"],
-        )
-        .into_iter();
-        let mut sort = compile(device, "sort", &[COMMON_WGSL, SORT_WGSL], &["count_digits", "scatter"])
-            .into_iter();
-        let mut next = |it: &mut std::vec::IntoIter<wgpu::ComputePipeline>| it.next().expect("pipeline");
+            "sort",
+            &[COMMON_WGSL, SORT_WGSL],
+            &["count_digits", "scatter"],
+        );
+        let [scan_blocks, scan_block_sums, add_block_sums]: [wgpu::ComputePipeline; 3] =
+            scan.try_into().expect("three scan entry points");
+        let [count_digits, scatter]: [wgpu::ComputePipeline; 2] =
+            sort.try_into().expect("two sort entry points");
         Self {
-            scan_blocks: next(&mut scan),
-            scan_block_sums: next(&mut scan),
-            add_block_sums: next(&mut scan),
-            count_digits: next(&mut sort),
-            scatter: next(&mut sort),
+            scan_blocks,
+            scan_block_sums,
+            add_block_sums,
+            count_digits,
+            scatter,
         }
     }
 
@@ -193,7 +195,11 @@ impl SortKernels {
             {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
                 pass.set_pipeline(&self.scatter);
-                pass.set_bind_group(0, &bind_group(device, &self.scatter, &scatter_bindings), &[]);
+                pass.set_bind_group(
+                    0,
+                    &bind_group(device, &self.scatter, &scatter_bindings),
+                    &[],
+                );
                 dispatch_linear(&mut pass, num_blocks);
             }
             src = dst;

@@ -51,7 +51,9 @@ impl SceneInput<'_> {
     fn validate(&self) -> Result<(u32, u32), RasterError> {
         let n = self.len();
         let bad = |what: &str, got: usize, want: usize| {
-            RasterError::InvalidInput(format!("{what} has {got} values, expected {want} for {n} Gaussians"))
+            RasterError::InvalidInput(format!(
+                "{what} has {got} values, expected {want} for {n} Gaussians"
+            ))
         };
         if self.means.len() != 3 * n {
             return Err(bad("means", self.means.len(), 3 * n));
@@ -80,7 +82,13 @@ impl SceneInput<'_> {
     /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
     fn packed(&self) -> Vec<f32> {
         let mut out = Vec::with_capacity(11 * self.len() + self.sh.len());
-        for part in [self.means, self.log_scales, self.quats, self.opacity_logits, self.sh] {
+        for part in [
+            self.means,
+            self.log_scales,
+            self.quats,
+            self.opacity_logits,
+            self.sh,
+        ] {
             out.extend_from_slice(part);
         }
         out
@@ -137,8 +145,18 @@ fn render_params(camera: &Camera, settings: &RenderSettings, n: u32, k: u32) -> 
     RenderParams {
         rot_rows: [row(0), row(1), row(2)],
         cam_pos: [p.x as f32, p.y as f32, p.z as f32, 0.0],
-        intrinsics: [camera.fx as f32, camera.fy as f32, camera.cx as f32, camera.cy as f32],
-        jacobian_limits: [(JACOBIAN_CLAMP * tan_x) as f32, (JACOBIAN_CLAMP * tan_y) as f32, 0.0, 0.0],
+        intrinsics: [
+            camera.fx as f32,
+            camera.fy as f32,
+            camera.cx as f32,
+            camera.cy as f32,
+        ],
+        jacobian_limits: [
+            (JACOBIAN_CLAMP * tan_x) as f32,
+            (JACOBIAN_CLAMP * tan_y) as f32,
+            0.0,
+            0.0,
+        ],
         background: [bg[0], bg[1], bg[2], 0.0],
         width: camera.width,
         height: camera.height,
@@ -152,7 +170,9 @@ fn render_params(camera: &Camera, settings: &RenderSettings, n: u32, k: u32) -> 
 }
 
 fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
-    let finite = [camera.fx, camera.fy, camera.cx, camera.cy].iter().all(|v| v.is_finite())
+    let finite = [camera.fx, camera.fy, camera.cx, camera.cy]
+        .iter()
+        .all(|v| v.is_finite())
         && camera.rotation.is_finite()
         && camera.translation.is_finite();
     if !finite || camera.fx <= 0.0 || camera.fy <= 0.0 {
@@ -261,7 +281,8 @@ impl Renderer {
     pub fn new(ctx: GpuContext) -> Result<Self, RasterError> {
         let device = &ctx.device;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let one = |label: &str, sources: &[&str]| compile(device, label, sources, &["main"]).remove(0);
+        let one =
+            |label: &str, sources: &[&str]| compile(device, label, sources, &["main"]).remove(0);
         let mut tiles = compile(
             device,
             "tiles",
@@ -279,7 +300,10 @@ impl Renderer {
             emit,
             ranges: one("ranges", &[COMMON_WGSL, RANGES_WGSL]),
             rasterize: one("rasterize", &[COMMON_WGSL, RASTERIZE_WGSL]),
-            rasterize_backward: one("rasterize_backward", &[COMMON_WGSL, RASTERIZE_BACKWARD_WGSL]),
+            rasterize_backward: one(
+                "rasterize_backward",
+                &[COMMON_WGSL, RASTERIZE_BACKWARD_WGSL],
+            ),
             project_backward: one(
                 "project_backward",
                 &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_BACKWARD_WGSL],
@@ -344,7 +368,9 @@ impl Renderer {
     ) -> Result<Frame, RasterError> {
         validate_camera(camera)?;
         if !settings.background.iter().all(|v| v.is_finite()) {
-            return Err(RasterError::InvalidInput("background must be finite".into()));
+            return Err(RasterError::InvalidInput(
+                "background must be finite".into(),
+            ));
         }
         let (n, k) = scene.validate()?;
         let mut params = render_params(camera, settings, n, k);
@@ -355,19 +381,30 @@ impl Renderer {
         let pixels = camera.width as u64 * camera.height as u64;
 
         // Stage 1: projection, depth sort, tile-count scan.
-        let gaussians = b.gaussians.get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64));
-        queue.write_buffer(gaussians, 0, bytemuck::cast_slice(&scene.packed()));
+        let gaussians = b
+            .gaussians
+            .get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64))
+            .clone();
+        queue.write_buffer(&gaussians, 0, bytemuck::cast_slice(&scene.packed()));
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
         let n64 = n as u64;
         let (counts_len, sums_len) = scratch_len(n + 1);
         let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
         let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
-        let dk = [b.depth_keys[0].get(&device, 4 * n64).clone(), b.depth_keys[1].get(&device, 4 * n64).clone()];
-        let dv = [b.depth_vals[0].get(&device, 4 * n64).clone(), b.depth_vals[1].get(&device, 4 * n64).clone()];
+        let dk = [
+            b.depth_keys[0].get(&device, 4 * n64).clone(),
+            b.depth_keys[1].get(&device, 4 * n64).clone(),
+        ];
+        let dv = [
+            b.depth_vals[0].get(&device, 4 * n64).clone(),
+            b.depth_vals[1].get(&device, 4 * n64).clone(),
+        ];
         let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
-        let gaussians = gaussians.clone();
         let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
-        let out_pixels = b.pixels.get(&device, 4 * PIXEL_CHANNELS as u64 * pixels).clone();
+        let out_pixels = b
+            .pixels
+            .get(&device, 4 * PIXEL_CHANNELS as u64 * pixels)
+            .clone();
         let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
 
         let groups_n = div_ceil(n, 256);
@@ -382,7 +419,14 @@ impl Renderer {
                 let group = bind_group(
                     &device,
                     &self.project,
-                    &[(0, &b.params), (1, &gaussians), (2, &projected), (3, &tile_counts), (4, &dk[0]), (5, &dv[0])],
+                    &[
+                        (0, &b.params),
+                        (1, &gaussians),
+                        (2, &projected),
+                        (3, &tile_counts),
+                        (4, &dk[0]),
+                        (5, &dv[0]),
+                    ],
                 );
                 pass.set_bind_group(0, &group, &[]);
                 dispatch_linear(&mut pass, groups_n);
@@ -403,12 +447,18 @@ impl Renderer {
                 let group = bind_group(
                     &device,
                     &self.gather_counts,
-                    &[(0, &b.params), (2, &tile_counts), (3, &dv[depth_sorted]), (4, &offsets)],
+                    &[
+                        (0, &b.params),
+                        (2, &tile_counts),
+                        (3, &dv[depth_sorted]),
+                        (4, &offsets),
+                    ],
                 );
                 pass.set_bind_group(0, &group, &[]);
                 dispatch_linear(&mut pass, div_ceil(n + 1, 256));
             }
-            self.sort.encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
+            self.sort
+                .encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         queue.submit([encoder.finish()]);
@@ -434,8 +484,14 @@ impl Renderer {
 
         // Stage 2: intersections, tile sort, ranges, blending.
         let m64 = m as u64;
-        let ik = [b.isect_keys[0].get(&device, 4 * m64).clone(), b.isect_keys[1].get(&device, 4 * m64).clone()];
-        let is = [b.isect_slots[0].get(&device, 4 * m64).clone(), b.isect_slots[1].get(&device, 4 * m64).clone()];
+        let ik = [
+            b.isect_keys[0].get(&device, 4 * m64).clone(),
+            b.isect_keys[1].get(&device, 4 * m64).clone(),
+        ];
+        let is = [
+            b.isect_slots[0].get(&device, 4 * m64).clone(),
+            b.isect_slots[1].get(&device, 4 * m64).clone(),
+        ];
         let ig = b.isect_gaussian.get(&device, 4 * m64).clone();
         let (counts_len, sums_len) = scratch_len(m);
         let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
@@ -477,7 +533,11 @@ impl Renderer {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             if m > 0 {
                 pass.set_pipeline(&self.ranges);
-                let group = bind_group(&device, &self.ranges, &[(0, &b.params), (1, &ik[sorted]), (2, &ranges)]);
+                let group = bind_group(
+                    &device,
+                    &self.ranges,
+                    &[(0, &b.params), (1, &ik[sorted]), (2, &ranges)],
+                );
                 pass.set_bind_group(0, &group, &[]);
                 dispatch_linear(&mut pass, div_ceil(m, 256));
             }
@@ -540,7 +600,12 @@ impl Renderer {
     ) -> Result<(Vec<f32>, u32), RasterError> {
         let frame = self.encode_frame(scene, camera, settings)?;
         let bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
-        let src = self.buffers.pixels.buffer.clone().expect("allocated by encode_frame");
+        let src = self
+            .buffers
+            .pixels
+            .buffer
+            .clone()
+            .expect("allocated by encode_frame");
         let data = self.read_back(&src, bytes)?;
         Ok((bytemuck::pod_collect_to_vec(&data), frame.num_intersections))
     }
@@ -573,7 +638,10 @@ impl Renderer {
         let v_buf = b.v_pixels.get(&device, 4 * v_pixels.len() as u64).clone();
         queue.write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
         let m = frame.num_intersections as u64;
-        let isect_grads = b.isect_grads.get(&device, 4 * ISECT_GRAD_FLOATS * m).clone();
+        let isect_grads = b
+            .isect_grads
+            .get(&device, 4 * ISECT_GRAD_FLOATS * m)
+            .clone();
         let grads = b.grads.get(&device, 4 * grad_floats).clone();
         let get = |g: &GrowBuffer| g.buffer.clone().expect("allocated by encode_frame");
         let depth_vals = get(&b.depth_vals[frame.depth_sorted]);
@@ -627,11 +695,13 @@ impl Renderer {
         };
         let n = n as usize;
         let k = k as usize;
-        let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n].into_iter().scan(0, |start, len| {
-            let range = *start..*start + len;
-            *start += len;
-            Some(flat[range].to_vec())
-        });
+        let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
+            .into_iter()
+            .scan(0, |start, len| {
+                let range = *start..*start + len;
+                *start += len;
+                Some(flat[range].to_vec())
+            });
         let mut next = || parts.next().expect("five parts");
         Ok(Gradients {
             means: next(),

@@ -8,11 +8,17 @@ use glam::DVec3;
 use wgpu::util::DeviceExt;
 
 fn storage(device: &wgpu::Device, data: &[u32]) -> wgpu::Buffer {
-    let padded: Vec<u32> = data.iter().copied().chain(std::iter::repeat_n(0, 64)).collect();
+    let padded: Vec<u32> = data
+        .iter()
+        .copied()
+        .chain(std::iter::repeat_n(0, 64))
+        .collect();
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: None,
         contents: bytemuck::cast_slice(&padded),
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
     })
 }
 
@@ -27,8 +33,12 @@ fn read(ctx: &GpuContext, src: &wgpu::Buffer, len: usize) -> Vec<u32> {
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     encoder.copy_buffer_to_buffer(src, 0, &staging, 0, bytes);
     ctx.queue.submit([encoder.finish()]);
-    staging.slice(..).map_async(wgpu::MapMode::Read, |r| r.expect("map"));
-    ctx.device.poll(wgpu::PollType::wait_indefinitely()).expect("poll");
+    staging
+        .slice(..)
+        .map_async(wgpu::MapMode::Read, |r| r.expect("map"));
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .expect("poll");
     let out = bytemuck::cast_slice(&staging.slice(..).get_mapped_range().expect("mapped")).to_vec();
     out[..len].to_vec()
 }
@@ -41,7 +51,12 @@ fn random_u32(seed: &mut u64) -> u32 {
     (*seed >> 32) as u32
 }
 
-fn gpu_sort(ctx: &GpuContext, kernels: &SortKernels, keys: &[u32], bits: u32) -> (Vec<u32>, Vec<u32>) {
+fn gpu_sort(
+    ctx: &GpuContext,
+    kernels: &SortKernels,
+    keys: &[u32],
+    bits: u32,
+) -> (Vec<u32>, Vec<u32>) {
     let n = keys.len() as u32;
     let vals: Vec<u32> = (0..n).collect();
     let k = [storage(&ctx.device, keys), storage(&ctx.device, keys)];
@@ -50,9 +65,21 @@ fn gpu_sort(ctx: &GpuContext, kernels: &SortKernels, keys: &[u32], bits: u32) ->
     let counts = storage(&ctx.device, &vec![0; counts_len as usize]);
     let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
-    let out = kernels.encode_sort(&ctx.device, &mut encoder, [&k[0], &k[1]], [&v[0], &v[1]], &counts, &sums, n, bits);
+    let out = kernels.encode_sort(
+        &ctx.device,
+        &mut encoder,
+        [&k[0], &k[1]],
+        [&v[0], &v[1]],
+        &counts,
+        &sums,
+        n,
+        bits,
+    );
     ctx.queue.submit([encoder.finish()]);
-    (read(ctx, &k[out], keys.len()), read(ctx, &v[out], keys.len()))
+    (
+        read(ctx, &k[out], keys.len()),
+        read(ctx, &v[out], keys.len()),
+    )
 }
 
 #[test]
@@ -60,7 +87,14 @@ fn radix_sort_matches_a_stable_cpu_sort() {
     let ctx = GpuContext::new().expect("adapter");
     let kernels = SortKernels::new(&ctx.device);
     let mut seed = 0x9e37_79b9_7f4a_7c15;
-    for (len, bits, modulus) in [(1usize, 32, u32::MAX), (7, 32, 3), (1000, 32, u32::MAX), (5000, 13, 50), (70_000, 32, 1000), (3000, 4, 16)] {
+    for (len, bits, modulus) in [
+        (1usize, 32, u32::MAX),
+        (7, 32, 3),
+        (1000, 32, u32::MAX),
+        (5000, 13, 50),
+        (70_000, 32, 1000),
+        (3000, 4, 16),
+    ] {
         let keys: Vec<u32> = (0..len).map(|_| random_u32(&mut seed) % modulus).collect();
         let (sorted_keys, sorted_vals) = gpu_sort(&ctx, &kernels, &keys, bits);
         let mut expected: Vec<(u32, u32)> = keys.iter().copied().zip(0..).collect();
@@ -85,7 +119,14 @@ fn scan_matches_a_cpu_prefix_sum() {
         kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, len as u32);
         ctx.queue.submit([encoder.finish()]);
         let got = read(&ctx, &buf, len);
-        let expected: Vec<u32> = data.iter().scan(0, |acc, &v| { let out = *acc; *acc += v; Some(out) }).collect();
+        let expected: Vec<u32> = data
+            .iter()
+            .scan(0, |acc, &v| {
+                let out = *acc;
+                *acc += v;
+                Some(out)
+            })
+            .collect();
         assert_eq!(got, expected, "len {len}");
     }
 }
@@ -128,9 +169,14 @@ fn camera(width: u32, height: u32) -> Camera {
 fn centred_gaussian_peaks_at_the_image_centre() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let g = OneGaussian::new([5.0, 0.0, 0.0], -1.0, 2.0);
-    let settings = RenderSettings { background: [0.0; 3], antialiased: false };
+    let settings = RenderSettings {
+        background: [0.0; 3],
+        antialiased: false,
+    };
     let (w, h) = (40u32, 30u32);
-    let (pixels, isects) = renderer.forward(&g.input(), &camera(w, h), &settings).expect("render");
+    let (pixels, isects) = renderer
+        .forward(&g.input(), &camera(w, h), &settings)
+        .expect("render");
     assert!(isects >= 1);
     let alpha = |x: u32, y: u32| pixels[((y * w + x) as usize) * 5 + 3];
     // The mean projects to (20, 15): the four pixels around it are equal and brightest.
@@ -139,7 +185,10 @@ fn centred_gaussian_peaks_at_the_image_centre() {
         assert!((alpha(x, y) - peak).abs() < 1e-5);
     }
     let expected_peak = 1.0 / (1.0 + (-2.0f32).exp());
-    assert!(peak > 0.5 * expected_peak && peak <= expected_peak, "peak {peak}");
+    assert!(
+        peak > 0.5 * expected_peak && peak <= expected_peak,
+        "peak {peak}"
+    );
     assert_eq!(alpha(0, 0), 0.0);
     // Expected depth D / alpha is the Gaussian's z.
     let d = pixels[((14 * w + 19) as usize) * 5 + 4] / peak;
@@ -152,14 +201,19 @@ fn centred_gaussian_peaks_at_the_image_centre() {
 #[test]
 fn gaussians_behind_the_camera_or_invalid_are_culled() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let settings = RenderSettings { background: [0.25, 0.5, 0.75], antialiased: true };
+    let settings = RenderSettings {
+        background: [0.25, 0.5, 0.75],
+        antialiased: true,
+    };
     for g in [
         OneGaussian::new([-5.0, 0.0, 0.0], 0.0, 5.0),
         OneGaussian::new([0.005, 0.0, 0.0], 0.0, 5.0),
         OneGaussian::new([f32::NAN, 0.0, 0.0], 0.0, 5.0),
         OneGaussian::new([5.0, 0.0, 0.0], f32::INFINITY, 5.0),
     ] {
-        let (pixels, isects) = renderer.forward(&g.input(), &camera(17, 13), &settings).expect("render");
+        let (pixels, isects) = renderer
+            .forward(&g.input(), &camera(17, 13), &settings)
+            .expect("render");
         assert_eq!(isects, 0);
         for px in pixels.chunks(5) {
             assert_eq!(px, &[0.25, 0.5, 0.75, 0.0, 0.0]);
@@ -172,8 +226,15 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let mut g = OneGaussian::new([5.0, 0.0, 0.0], 0.0, 0.0);
     g.sh.push(0.0);
-    let settings = RenderSettings { background: [0.0; 3], antialiased: false };
-    assert!(renderer.forward(&g.input(), &camera(8, 8), &settings).is_err());
+    let settings = RenderSettings {
+        background: [0.0; 3],
+        antialiased: false,
+    };
+    assert!(renderer
+        .forward(&g.input(), &camera(8, 8), &settings)
+        .is_err());
     let g = OneGaussian::new([5.0, 0.0, 0.0], 0.0, 0.0);
-    assert!(renderer.backward(&g.input(), &camera(8, 8), &settings, &[0.0; 3]).is_err());
+    assert!(renderer
+        .backward(&g.input(), &camera(8, 8), &settings, &[0.0; 3])
+        .is_err());
 }
