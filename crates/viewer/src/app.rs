@@ -10,7 +10,9 @@ use eframe::egui;
 use eframe::egui_wgpu;
 use image::RgbaImage;
 
-use crate::camera::{CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG};
+use crate::camera::{
+    CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG,
+};
 use crate::render::{save_png, FrameOptions, FrameRenderer};
 use crate::scene::Scene;
 use crate::time::TimeControl;
@@ -42,10 +44,11 @@ impl DisplayTexture {
             view_formats: &[],
         });
         let view = texture.create_view(&Default::default());
-        let id = state
-            .renderer
-            .write()
-            .register_native_texture(&state.device, &view, wgpu::FilterMode::Linear);
+        let id = state.renderer.write().register_native_texture(
+            &state.device,
+            &view,
+            wgpu::FilterMode::Linear,
+        );
         Self { texture, id }
     }
 
@@ -113,7 +116,9 @@ impl ViewerApp {
             ),
             None => Err("pano4d-view needs eframe's wgpu renderer, which is not running".into()),
         };
-        let extent = SceneExtent { median_distance: 1.0 };
+        let extent = SceneExtent {
+            median_distance: 1.0,
+        };
         let mut app = Self {
             opened: None,
             error: None,
@@ -215,7 +220,8 @@ impl ViewerApp {
                 up: axis(egui::Key::E, egui::Key::Q),
                 fast: i.modifiers.shift,
             };
-            let step = i.key_pressed(egui::Key::Period) as i64 - i.key_pressed(egui::Key::Comma) as i64;
+            let step =
+                i.key_pressed(egui::Key::Period) as i64 - i.key_pressed(egui::Key::Comma) as i64;
             (
                 input,
                 i.stable_dt as f64,
@@ -264,11 +270,20 @@ impl ViewerApp {
     }
 
     /// Draws a new frame if anything changed; errors replace the view with a message.
-    fn render_if_needed(&mut self, state: Option<&egui_wgpu::RenderState>, width: u32, height: u32) {
-        let (Some(renderer), Some(open), Some(state)) = (&mut self.renderer, &self.opened, state) else {
+    fn render_if_needed(
+        &mut self,
+        state: Option<&egui_wgpu::RenderState>,
+        width: u32,
+        height: u32,
+    ) {
+        let (Some(renderer), Some(open), Some(state)) = (&mut self.renderer, &self.opened, state)
+        else {
             return;
         };
-        let size_changed = self.display.as_ref().is_none_or(|d| d.size() != [width, height]);
+        let size_changed = self
+            .display
+            .as_ref()
+            .is_none_or(|d| d.size() != [width, height]);
         let time_changed = renderer.shown_time() != Some(open.time.index);
         if !(self.dirty || size_changed || time_changed) {
             return;
@@ -312,7 +327,10 @@ impl ViewerApp {
             .unwrap_or_else(|| "scene".into());
         let mut n = 0;
         let path = loop {
-            let candidate = PathBuf::from(format!("pano4d-view-{stem}-t{:04}-{n}.png", open.time.index));
+            let candidate = PathBuf::from(format!(
+                "pano4d-view-{stem}-t{:04}-{n}.png",
+                open.time.index
+            ));
             if !candidate.exists() {
                 break candidate;
             }
@@ -339,15 +357,26 @@ impl ViewerApp {
             ui.label(dynamics.to_string());
             ui.end_row();
             ui.label("fps");
-            let fps = if self.frame_seconds > 0.0 { 1.0 / self.frame_seconds } else { 0.0 };
+            let fps = if self.frame_seconds > 0.0 {
+                1.0 / self.frame_seconds
+            } else {
+                0.0
+            };
             ui.label(format!("{fps:.1}"));
             ui.end_row();
             ui.label("Frame time");
-            let render = self.renderer.as_ref().map_or(Duration::ZERO, |r| r.last_render_time());
+            let render = self
+                .renderer
+                .as_ref()
+                .map_or(Duration::ZERO, |r| r.last_render_time());
             ui.label(format!("{:.1} ms", render.as_secs_f64() * 1e3));
             ui.end_row();
             ui.label("Adapter");
-            ui.label(self.renderer.as_ref().map_or("none", |r| r.adapter().name.as_str()));
+            ui.label(
+                self.renderer
+                    .as_ref()
+                    .map_or("none", |r| r.adapter().name.as_str()),
+            );
             ui.end_row();
         });
         ui.separator();
@@ -364,7 +393,9 @@ impl ViewerApp {
                 self.dirty = true;
             }
         });
-        let fov = ui.add(egui::Slider::new(&mut self.camera.fov_deg, MIN_FOV_DEG..=MAX_FOV_DEG).text("FOV °"));
+        let fov = ui.add(
+            egui::Slider::new(&mut self.camera.fov_deg, MIN_FOV_DEG..=MAX_FOV_DEG).text("FOV °"),
+        );
         let speed = self.extent.walking_speed();
         ui.add(
             egui::Slider::new(&mut self.camera.speed, speed * 0.01..=speed * 100.0)
@@ -379,7 +410,11 @@ impl ViewerApp {
                 ui.ctx().copy_text(pose_line.clone());
                 self.status = "Pose copied".into();
             }
-            if ui.button("Paste pose").on_hover_text("Apply the pose typed below").clicked() {
+            if ui
+                .button("Paste pose")
+                .on_hover_text("Apply the pose typed below")
+                .clicked()
+            {
                 match CameraPose::parse(&self.pose_text) {
                     Ok(pose) => {
                         self.camera.set_pose(&pose);
@@ -401,8 +436,10 @@ impl ViewerApp {
                 self.dirty = true;
             }
         });
-        let scale = ui.add(egui::Slider::new(&mut self.options.splat_scale, 0.1..=2.0).text("splat scale"));
-        let resolution = ui.add(egui::Slider::new(&mut self.render_scale, 0.1..=1.0).text("resolution"));
+        let scale =
+            ui.add(egui::Slider::new(&mut self.options.splat_scale, 0.1..=2.0).text("splat scale"));
+        let resolution =
+            ui.add(egui::Slider::new(&mut self.render_scale, 0.1..=1.0).text("resolution"));
         self.dirty |= scale.changed() || resolution.changed();
         if ui.button("Screenshot (PNG)").clicked() {
             self.screenshot();
@@ -427,7 +464,11 @@ impl ViewerApp {
             if ui.button("⏮").on_hover_text("Previous frame (,)").clicked() {
                 time.step(-1);
             }
-            let label = if time.playing { "⏸ Pause" } else { "▶ Play" };
+            let label = if time.playing {
+                "⏸ Pause"
+            } else {
+                "▶ Play"
+            };
             if ui.button(label).clicked() {
                 time.toggle_play();
             }
@@ -435,7 +476,12 @@ impl ViewerApp {
                 time.step(1);
             }
             ui.checkbox(&mut time.looping, "Loop");
-            ui.add(egui::DragValue::new(&mut time.speed).range(0.05..=8.0).speed(0.01).suffix("×"));
+            ui.add(
+                egui::DragValue::new(&mut time.speed)
+                    .range(0.05..=8.0)
+                    .speed(0.01)
+                    .suffix("×"),
+            );
             let mut index = time.index;
             let last = time.count() - 1;
             let slider = egui::Slider::new(&mut index, 0..=last).text("time");
@@ -450,14 +496,19 @@ impl ViewerApp {
     fn view(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
         let rect = ui.available_rect_before_wrap();
         self.view_rect = rect;
-        let response = ui.interact(rect, ui.id().with("view"), egui::Sense::click_and_drag());
+        let response = ui.interact(
+            rect,
+            ui.make_persistent_id("view"),
+            egui::Sense::click_and_drag(),
+        );
         if response.dragged() {
             let delta = response.drag_delta();
             self.camera.drag(delta.x as f64, delta.y as f64);
             self.dirty = true;
         }
         if response.hovered() {
-            let (scroll, ctrl) = ui.input(|i| (i.smooth_scroll_delta.y as f64, i.modifiers.command));
+            let (scroll, ctrl) =
+                ui.input(|i| (i.smooth_scroll_delta.y as f64, i.modifiers.command));
             if scroll != 0.0 {
                 if ctrl {
                     self.camera.zoom(scroll / 50.0);
@@ -503,9 +554,11 @@ impl eframe::App for ViewerApp {
         self.frame_seconds += FPS_SMOOTHING * (dt - self.frame_seconds);
         self.handle_keys(&ctx);
         self.advance_time(&ctx);
-        egui::Panel::right("settings").resizable(true).show(ui, |ui| {
-            egui::ScrollArea::vertical().show(ui, |ui| self.side_panel(ui));
-        });
+        egui::Panel::right("settings")
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.side_panel(ui));
+            });
         egui::Panel::bottom("time").show(ui, |ui| self.time_panel(ui));
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)

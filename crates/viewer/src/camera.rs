@@ -43,7 +43,10 @@ pub struct SceneExtent {
 impl SceneExtent {
     /// The extent of the means (non-finite ones ignored); a unit extent for an empty set.
     /// Looks at most `max_samples` means, evenly strided, so that 10⁷ Gaussians stay cheap.
-    pub fn of_means<'a>(means: impl ExactSizeIterator<Item = &'a [f32; 3]>, max_samples: usize) -> Self {
+    pub fn of_means<'a>(
+        means: impl ExactSizeIterator<Item = &'a [f32; 3]>,
+        max_samples: usize,
+    ) -> Self {
         let stride = means.len().div_ceil(max_samples.max(1)).max(1);
         let mut distances: Vec<f64> = means
             .step_by(stride)
@@ -51,7 +54,9 @@ impl SceneExtent {
             .filter(|d| d.is_finite())
             .collect();
         if distances.is_empty() {
-            return Self { median_distance: 1.0 };
+            return Self {
+                median_distance: 1.0,
+            };
         }
         let mid = distances.len() / 2;
         let (_, median, _) = distances.select_nth_unstable_by(mid, f64::total_cmp);
@@ -104,7 +109,11 @@ impl CameraPose {
                  \"fov_deg\":f}}"
             )
         })?;
-        let finite = pose.position.iter().chain(&pose.forward).all(|v| v.is_finite());
+        let finite = pose
+            .position
+            .iter()
+            .chain(&pose.forward)
+            .all(|v| v.is_finite());
         if !finite || !pose.fov_deg.is_finite() {
             return Err("invalid camera pose: every number must be finite".into());
         }
@@ -208,8 +217,9 @@ impl ViewCamera {
     /// direction, the image's right and world up. Orbit: the target and eye move together.
     pub fn step(&mut self, input: &MoveInput, dt: f64) {
         let factor = if input.fast { FAST_FACTOR } else { 1.0 };
-        let delta = (self.forward() * input.forward + self.right() * input.right + DVec3::Z * input.up)
-            * (self.speed * factor * dt);
+        let delta =
+            (self.forward() * input.forward + self.right() * input.right + DVec3::Z * input.up)
+                * (self.speed * factor * dt);
         self.position += delta;
         self.orbit_target += delta;
     }
@@ -234,7 +244,14 @@ impl ViewCamera {
 
     /// The OpenCV pinhole camera for a `width`×`height` image.
     pub fn to_camera(&self, width: u32, height: u32) -> Camera {
-        Camera::from_fov(self.fov_deg, width, height, self.position, self.forward(), DVec3::Z)
+        Camera::from_fov(
+            self.fov_deg,
+            width,
+            height,
+            self.position,
+            self.forward(),
+            DVec3::Z,
+        )
     }
 
     pub fn pose(&self) -> CameraPose {
@@ -269,28 +286,58 @@ impl ViewCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use approx::assert_relative_eq;
+    use glam::DMat3;
+
+    /// Equality up to rounding, for scalars, vectors and matrices.
+    trait Near: Copy + std::fmt::Debug {
+        fn near(self, other: Self) -> bool;
+    }
+
+    impl Near for f64 {
+        fn near(self, other: Self) -> bool {
+            (self - other).abs() <= 1e-9 * (1.0 + other.abs())
+        }
+    }
+
+    impl Near for DVec3 {
+        fn near(self, other: Self) -> bool {
+            self.abs_diff_eq(other, 1e-9)
+        }
+    }
+
+    impl Near for DMat3 {
+        fn near(self, other: Self) -> bool {
+            self.abs_diff_eq(other, 1e-9)
+        }
+    }
+
+    #[track_caller]
+    fn assert_near<T: Near>(a: T, b: T) {
+        assert!(a.near(b), "{a:?} != {b:?}");
+    }
 
     fn extent() -> SceneExtent {
-        SceneExtent { median_distance: 10.0 }
+        SceneExtent {
+            median_distance: 10.0,
+        }
     }
 
     #[test]
     fn panorama_viewpoint_looks_along_x_from_origin() {
         let cam = ViewCamera::panorama_viewpoint(&extent());
         assert_eq!(cam.position, DVec3::ZERO);
-        assert_relative_eq!(cam.forward(), DVec3::X, epsilon = 1e-12);
+        assert_near(cam.forward(), DVec3::X);
         // OpenCV: the image's right is world -y, its down is world -z.
         let c = cam.to_camera(64, 32);
-        assert_relative_eq!(c.rotation.row(0), DVec3::NEG_Y, epsilon = 1e-12);
-        assert_relative_eq!(c.rotation.row(1), DVec3::NEG_Z, epsilon = 1e-12);
-        assert_relative_eq!(c.rotation.row(2), DVec3::X, epsilon = 1e-12);
+        assert_near(c.rotation.row(0), DVec3::NEG_Y);
+        assert_near(c.rotation.row(1), DVec3::NEG_Z);
+        assert_near(c.rotation.row(2), DVec3::X);
         // A point straight ahead lands on the principal point.
         let (uv, z) = c.project(DVec3::new(5.0, 0.0, 0.0));
-        assert_relative_eq!(uv.x, 32.0, epsilon = 1e-9);
-        assert_relative_eq!(uv.y, 16.0, epsilon = 1e-9);
-        assert_relative_eq!(z, 5.0, epsilon = 1e-12);
-        assert_relative_eq!(cam.speed, 2.0, epsilon = 1e-12);
+        assert_near(uv.x, 32.0);
+        assert_near(uv.y, 16.0);
+        assert_near(z, 5.0);
+        assert_near(cam.speed, 2.0);
     }
 
     #[test]
@@ -300,23 +347,33 @@ mod tests {
             cam.yaw = i as f64 * 0.4;
             cam.pitch = (i as f64 * 0.3).sin();
             let c = cam.to_camera(100, 100);
-            assert_relative_eq!(c.rotation.row(0), cam.right(), epsilon = 1e-9);
-            assert_relative_eq!(c.rotation.row(2), cam.forward(), epsilon = 1e-9);
+            assert_near(c.rotation.row(0), cam.right());
+            assert_near(c.rotation.row(2), cam.forward());
         }
     }
 
     #[test]
     fn fly_moves_along_view_right_and_up() {
         let mut cam = ViewCamera::panorama_viewpoint(&extent());
-        let forward = MoveInput { forward: 1.0, ..Default::default() };
+        let forward = MoveInput {
+            forward: 1.0,
+            ..Default::default()
+        };
         cam.step(&forward, 0.5);
-        assert_relative_eq!(cam.position, DVec3::new(1.0, 0.0, 0.0), epsilon = 1e-12);
-        let right_fast = MoveInput { right: 1.0, fast: true, ..Default::default() };
+        assert_near(cam.position, DVec3::new(1.0, 0.0, 0.0));
+        let right_fast = MoveInput {
+            right: 1.0,
+            fast: true,
+            ..Default::default()
+        };
         cam.step(&right_fast, 0.5);
-        assert_relative_eq!(cam.position, DVec3::new(1.0, -4.0, 0.0), epsilon = 1e-12);
-        let down = MoveInput { up: -1.0, ..Default::default() };
+        assert_near(cam.position, DVec3::new(1.0, -4.0, 0.0));
+        let down = MoveInput {
+            up: -1.0,
+            ..Default::default()
+        };
         cam.step(&down, 1.0);
-        assert_relative_eq!(cam.position, DVec3::new(1.0, -4.0, -2.0), epsilon = 1e-12);
+        assert_near(cam.position, DVec3::new(1.0, -4.0, -2.0));
     }
 
     #[test]
@@ -326,12 +383,12 @@ mod tests {
         // Turning right from +x heads toward -y.
         assert!(cam.forward().y < -0.1, "{:?}", cam.forward());
         cam.drag(0.0, -1e6);
-        assert_relative_eq!(cam.pitch, MAX_PITCH_DEG.to_radians(), epsilon = 1e-12);
+        assert_near(cam.pitch, MAX_PITCH_DEG.to_radians());
         cam.drag(0.0, 1e6);
-        assert_relative_eq!(cam.pitch, -MAX_PITCH_DEG.to_radians(), epsilon = 1e-12);
+        assert_near(cam.pitch, -MAX_PITCH_DEG.to_radians());
         // Still a valid rotation at the clamp.
         let c = cam.to_camera(10, 10);
-        assert_relative_eq!(c.rotation.determinant(), 1.0, epsilon = 1e-9);
+        assert_near(c.rotation.determinant(), 1.0);
     }
 
     #[test]
@@ -342,26 +399,22 @@ mod tests {
         let target = cam.orbit_target;
         for (dx, dy) in [(50.0, 10.0), (-300.0, 40.0), (10.0, -90.0)] {
             cam.drag(dx, dy);
-            assert_relative_eq!(cam.position.distance(target), cam.orbit_distance, epsilon = 1e-9);
-            assert_relative_eq!(
-                (target - cam.position).normalize(),
-                cam.forward(),
-                epsilon = 1e-9
-            );
+            assert_near(cam.position.distance(target), cam.orbit_distance);
+            assert_near((target - cam.position).normalize(), cam.forward());
         }
         let before = cam.orbit_distance;
         cam.scroll(3.0);
         assert!(cam.orbit_distance < before);
-        assert_relative_eq!(cam.position.distance(target), cam.orbit_distance, epsilon = 1e-9);
+        assert_near(cam.position.distance(target), cam.orbit_distance);
     }
 
     #[test]
     fn scroll_scales_speed_and_zoom_clamps_fov() {
         let mut cam = ViewCamera::panorama_viewpoint(&extent());
         cam.scroll(1.0);
-        assert_relative_eq!(cam.speed, 2.2, epsilon = 1e-12);
+        assert_near(cam.speed, 2.2);
         cam.scroll(-1.0);
-        assert_relative_eq!(cam.speed, 2.0, epsilon = 1e-12);
+        assert_near(cam.speed, 2.0);
         cam.zoom(1.0);
         assert!(cam.fov_deg < DEFAULT_FOV_DEG);
         cam.zoom(1e4);
@@ -382,22 +435,34 @@ mod tests {
         let pose = CameraPose::parse(&line).unwrap();
         let mut back = ViewCamera::panorama_viewpoint(&extent());
         back.set_pose(&pose);
-        assert_relative_eq!(back.position, cam.position, epsilon = 1e-12);
-        assert_relative_eq!(back.forward(), cam.forward(), epsilon = 1e-12);
+        assert_near(back.position, cam.position);
+        assert_near(back.forward(), cam.forward());
         assert_eq!(back.fov_deg, 65.0);
         let a = back.to_camera(320, 200);
         let b = cam.to_camera(320, 200);
-        assert_relative_eq!(a.rotation, b.rotation, epsilon = 1e-12);
+        assert_near(a.rotation, b.rotation);
     }
 
     #[test]
     fn bad_poses_are_rejected_with_a_reason() {
         let cases = [
             ("not json", "invalid camera pose"),
-            (r#"{"position":[0,0,0],"forward":[0,0,0],"fov_deg":60}"#, "zero vector"),
-            (r#"{"position":[0,0,0],"forward":[1,0,0],"fov_deg":180}"#, "fov_deg"),
-            (r#"{"position":[0,0],"forward":[1,0,0],"fov_deg":60}"#, "invalid camera pose"),
-            (r#"{"position":[0,0,0],"forward":[1,0,0],"fov_deg":60,"x":1}"#, "unknown field"),
+            (
+                r#"{"position":[0,0,0],"forward":[0,0,0],"fov_deg":60}"#,
+                "zero vector",
+            ),
+            (
+                r#"{"position":[0,0,0],"forward":[1,0,0],"fov_deg":180}"#,
+                "fov_deg",
+            ),
+            (
+                r#"{"position":[0,0],"forward":[1,0,0],"fov_deg":60}"#,
+                "invalid camera pose",
+            ),
+            (
+                r#"{"position":[0,0,0],"forward":[1,0,0],"fov_deg":60,"x":1}"#,
+                "unknown field",
+            ),
         ];
         for (text, reason) in cases {
             let err = CameraPose::parse(text).unwrap_err();
@@ -419,9 +484,12 @@ mod tests {
     fn extent_is_the_median_distance() {
         let means: Vec<[f32; 3]> = (1..=101).map(|i| [i as f32, 0.0, 0.0]).collect();
         let e = SceneExtent::of_means(means.iter(), 1000);
-        assert_relative_eq!(e.median_distance, 51.0);
+        assert_near(e.median_distance, 51.0);
         let with_nan = [[f32::NAN, 0.0, 0.0], [3.0, 4.0, 0.0]];
-        assert_relative_eq!(SceneExtent::of_means(with_nan.iter(), 10).median_distance, 5.0);
+        assert_near(
+            SceneExtent::of_means(with_nan.iter(), 10).median_distance,
+            5.0,
+        );
         assert_eq!(SceneExtent::of_means([].iter(), 10).median_distance, 1.0);
         // Sampling keeps the estimate close.
         let sampled = SceneExtent::of_means(means.iter(), 10).median_distance;

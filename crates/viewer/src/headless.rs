@@ -43,7 +43,11 @@ impl Default for ViewRequest {
 }
 
 /// Draws `request` of an opened `scene` with `renderer` (which must have loaded it).
-pub fn render_view(renderer: &mut FrameRenderer, scene: &Scene, request: &ViewRequest) -> Result<RgbaImage, String> {
+pub fn render_view(
+    renderer: &mut FrameRenderer,
+    scene: &Scene,
+    request: &ViewRequest,
+) -> Result<RgbaImage, String> {
     let index = match request.time {
         TimeSelection::Seconds(s) if s.is_finite() => scene.index_at(s),
         TimeSelection::Seconds(s) => return Err(format!("time must be finite, got {s}")),
@@ -62,7 +66,10 @@ pub fn render_view(renderer: &mut FrameRenderer, scene: &Scene, request: &ViewRe
         camera.fov_deg = pose.fov_deg;
     }
     renderer.show_time(scene, index)?;
-    renderer.render(&camera.to_camera(request.width, request.height), &request.options)
+    renderer.render(
+        &camera.to_camera(request.width, request.height),
+        &request.options,
+    )
 }
 
 /// Opens `path` on a device of its own and draws `request`.

@@ -38,10 +38,17 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let (w, h) = text
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("--size must be WxH, got {text:?}"))?;
-    let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&v| (1..=16384).contains(&v));
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&v| (1..=16384).contains(&v))
+    };
     match (parse(w), parse(h)) {
         (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err(format!("--size must be WxH with sides 1..=16384, got {text:?}")),
+        _ => Err(format!(
+            "--size must be WxH with sides 1..=16384, got {text:?}"
+        )),
     }
 }
 
@@ -53,7 +60,9 @@ fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
         .map_err(|_| format!("--background must be R,G,B numbers, got {text:?}"))?;
     match values[..] {
         [r, g, b] if values.iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),
-        _ => Err(format!("--background must be three values in 0..1, got {text:?}")),
+        _ => Err(format!(
+            "--background must be three values in 0..1, got {text:?}"
+        )),
     }
 }
 
@@ -92,14 +101,18 @@ fn parse_args(mut args: impl Iterator<Item = String>) -> Result<Args, String> {
                 parsed.request.width = w;
                 parsed.request.height = h;
             }
-            "--background" => parsed.request.options.background = parse_rgb(&value("--background")?)?,
+            "--background" => {
+                parsed.request.options.background = parse_rgb(&value("--background")?)?
+            }
             "--splat-scale" => {
                 let text = value("--splat-scale")?;
                 parsed.request.options.splat_scale = text
                     .parse::<f32>()
                     .ok()
                     .filter(|s| s.is_finite() && *s > 0.0)
-                    .ok_or_else(|| format!("--splat-scale must be a positive number, got {text:?}"))?;
+                    .ok_or_else(|| {
+                        format!("--splat-scale must be a positive number, got {text:?}")
+                    })?;
             }
             flag if flag.starts_with('-') => return Err(format!("unknown option {flag}")),
             path if parsed.scene.is_none() => parsed.scene = Some(PathBuf::from(path)),

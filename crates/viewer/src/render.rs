@@ -156,7 +156,11 @@ impl FrameRenderer {
     }
 
     /// A renderer on an existing device, e.g. the one egui draws with.
-    pub fn on_device(device: wgpu::Device, queue: wgpu::Queue, info: &wgpu::AdapterInfo) -> Result<Self, String> {
+    pub fn on_device(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        info: &wgpu::AdapterInfo,
+    ) -> Result<Self, String> {
         // Errors outside an error scope (e.g. an allocation that fails) are reported, not
         // turned into a panic inside the window's event loop.
         device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
@@ -166,14 +170,21 @@ impl FrameRenderer {
             name: info.name.clone(),
             backend: format!("{:?}", info.backend).to_lowercase(),
             device_type: format!("{:?}", info.device_type),
-            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+            driver: format!("{} {}", info.driver, info.driver_info)
+                .trim()
+                .to_string(),
         };
-        Self::with_context(GpuContext { device, queue, adapter })
+        Self::with_context(GpuContext {
+            device,
+            queue,
+            adapter,
+        })
     }
 
     fn with_context(ctx: GpuContext) -> Result<Self, String> {
         let adapter = ctx.adapter.clone();
-        let renderer = Renderer::new(ctx).map_err(|e| format!("cannot build the rasteriser: {e}"))?;
+        let renderer =
+            Renderer::new(ctx).map_err(|e| format!("cannot build the rasteriser: {e}"))?;
         Ok(Self {
             renderer,
             adapter,
@@ -224,7 +235,9 @@ impl FrameRenderer {
     /// Whether the packed scene fits the device's buffer limits (a message if not).
     pub fn check_fits(&self) -> Result<(), String> {
         let limits = self.renderer.context().device.limits();
-        let allowed = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let allowed = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         let need = gaussian_buffer_bytes(self.packed.len(), self.packed.sh_degree);
         if need > allowed {
             return Err(too_large_message(
@@ -248,10 +261,17 @@ impl FrameRenderer {
         let start = Instant::now();
         let device = self.renderer.context().device.clone();
         let out_of_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let result = self.renderer.forward(&self.packed.input(), camera, &settings);
+        let result = self
+            .renderer
+            .forward(&self.packed.input(), camera, &settings);
         if pollster::block_on(out_of_memory.pop()).is_some() {
             let need = gaussian_buffer_bytes(self.packed.len(), self.packed.sh_degree);
-            return Err(too_large_message(self.packed.len(), need, None, &self.adapter.name));
+            return Err(too_large_message(
+                self.packed.len(),
+                need,
+                None,
+                &self.adapter.name,
+            ));
         }
         let (pixels, _intersections) = result.map_err(|e| e.to_string())?;
         self.last_render = start.elapsed();
@@ -276,7 +296,11 @@ pub fn save_png(image: &RgbaImage, path: &Path) -> Result<(), String> {
     let file_name = path
         .file_name()
         .ok_or_else(|| format!("{} is not a file path", path.display()))?;
-    let tmp = path.with_file_name(format!(".{}.{}.tmp", file_name.to_string_lossy(), std::process::id()));
+    let tmp = path.with_file_name(format!(
+        ".{}.{}.tmp",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
     let written = image
         .save_with_format(&tmp, image::ImageFormat::Png)
         .map_err(|e| format!("cannot write {}: {e}", path.display()))
@@ -315,7 +339,10 @@ mod tests {
         packed.set_splat_scale(1.0);
         assert!((packed.log_scales[0] - before).abs() < 1e-6);
         let other_degree = synthetic::scene(1, 1, 1, 2, 3);
-        assert!(packed.set_dynamic(&other_degree.dynamic[0]).unwrap_err().contains("SH degree"));
+        assert!(packed
+            .set_dynamic(&other_degree.dynamic[0])
+            .unwrap_err()
+            .contains("SH degree"));
     }
 
     #[test]

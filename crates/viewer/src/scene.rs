@@ -225,7 +225,8 @@ mod tests {
     use crate::synthetic;
 
     fn temp_dir(tag: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("pano4d-view-scene-{tag}-{}", std::process::id()));
+        let dir =
+            std::env::temp_dir().join(format!("pano4d-view-scene-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         dir
@@ -266,6 +267,21 @@ mod tests {
     }
 
     #[test]
+    fn opens_the_real_guitar_in_both_layouts() {
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+        let standard = Scene::open(&data.join("gs_guitar.ply")).unwrap();
+        let compressed = Scene::open(&data.join("gs_guitar.compressed.ply")).unwrap();
+        for scene in [&standard, &compressed] {
+            assert_eq!(scene.static_set.len(), 90_854);
+            assert!(!scene.is_dynamic());
+            assert_eq!(scene.num_times(), 1);
+            // The guitar lies within 4.3 units of its capture frame's origin.
+            let d = scene.extent.median_distance;
+            assert!(d > 0.1 && d < 4.5, "{d}");
+        }
+    }
+
+    #[test]
     fn bad_files_give_messages() {
         let dir = temp_dir("bad");
         let scene = synthetic::scene(500, 50, 2, 0, 1);
@@ -276,7 +292,10 @@ mod tests {
         let truncated = dir.join("truncated.ply4d");
         std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
         let err = Scene::open(&truncated).err().unwrap();
-        assert!(err.contains("truncated") || err.contains("outside"), "{err}");
+        assert!(
+            err.contains("truncated") || err.contains("outside"),
+            "{err}"
+        );
 
         let corrupt = dir.join("corrupt.ply4d");
         let mut flipped = bytes.clone();
@@ -290,12 +309,18 @@ mod tests {
         let jpeg = dir.join("photo.ply4d");
         std::fs::write(&jpeg, b"\xff\xd8\xff\xe0\x00\x10JFIF").unwrap();
         let err = Scene::open(&jpeg).err().unwrap();
-        assert!(err.contains("neither a .ply4d scene nor a 3DGS .ply"), "{err}");
+        assert!(
+            err.contains("neither a .ply4d scene nor a 3DGS .ply"),
+            "{err}"
+        );
 
         let empty = dir.join("empty.ply");
         std::fs::write(&empty, b"").unwrap();
         assert!(Scene::open(&empty).err().unwrap().contains("empty"));
-        assert!(Scene::open(&dir.join("missing.ply4d")).err().unwrap().contains("cannot open"));
+        assert!(Scene::open(&dir.join("missing.ply4d"))
+            .err()
+            .unwrap()
+            .contains("cannot open"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

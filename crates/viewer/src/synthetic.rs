@@ -16,7 +16,11 @@ pub const FPS: f64 = 10.0;
 /// Centre of the moving ball at timestamp `t` of `times`: it rises from z = -0.8 to +0.8
 /// at (3, 1.2), which the panorama's viewpoint sees left of the image centre.
 pub fn ball_centre(t: usize, times: usize) -> DVec3 {
-    let progress = if times > 1 { t as f64 / (times - 1) as f64 } else { 0.0 };
+    let progress = if times > 1 {
+        t as f64 / (times - 1) as f64
+    } else {
+        0.0
+    };
     DVec3::new(3.0, 1.2, -0.8 + 1.6 * progress)
 }
 
@@ -60,7 +64,13 @@ fn push(set: &mut GaussianSet, mean: DVec3, scale: f64, rgb: [f64; 3], random: &
 
 /// `static_count` Gaussians on the shell, `dynamic_count` in the ball at each of `times`
 /// timestamps, SH degree `sh_degree`, the same output for the same `seed`.
-pub fn scene(static_count: usize, dynamic_count: usize, times: usize, sh_degree: u32, seed: u64) -> Scene4d {
+pub fn scene(
+    static_count: usize,
+    dynamic_count: usize,
+    times: usize,
+    sh_degree: u32,
+    seed: u64,
+) -> Scene4d {
     let mut random = Random(seed);
     let mut static_set = GaussianSet {
         sh_degree,
@@ -77,7 +87,13 @@ pub fn scene(static_count: usize, dynamic_count: usize, times: usize, sh_degree:
             0.5 + 0.4 * (4.0 * d.z).cos(),
             0.5 + 0.4 * (2.0 * lon + d.z).cos(),
         ];
-        push(&mut static_set, d * SHELL_RADIUS, 0.6 * spacing, rgb, &mut random);
+        push(
+            &mut static_set,
+            d * SHELL_RADIUS,
+            0.6 * spacing,
+            rgb,
+            &mut random,
+        );
     }
     let ball_spacing = BALL_RADIUS * (dynamic_count.max(1) as f64).powf(-1.0 / 3.0);
     let dynamic = (0..times)
@@ -90,7 +106,13 @@ pub fn scene(static_count: usize, dynamic_count: usize, times: usize, sh_degree:
             for _ in 0..dynamic_count {
                 let offset = random.unit_vector() * BALL_RADIUS * random.next().cbrt();
                 let rgb = [0.95, 0.3 + 0.2 * random.next(), 0.1];
-                push(&mut set, centre + offset, 1.2 * ball_spacing, rgb, &mut random);
+                push(
+                    &mut set,
+                    centre + offset,
+                    1.2 * ball_spacing,
+                    rgb,
+                    &mut random,
+                );
             }
             set
         })

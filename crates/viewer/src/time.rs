@@ -17,7 +17,11 @@ pub struct TimeControl {
 impl TimeControl {
     /// `timestamps` in seconds, ascending; an empty list is treated as a single moment.
     pub fn new(timestamps: &[f64]) -> Self {
-        let timestamps = if timestamps.is_empty() { vec![0.0] } else { timestamps.to_vec() };
+        let timestamps = if timestamps.is_empty() {
+            vec![0.0]
+        } else {
+            timestamps.to_vec()
+        };
         Self {
             timestamps,
             index: 0,
@@ -67,7 +71,11 @@ impl TimeControl {
         self.playing = false;
         let n = self.count() as i64;
         let target = self.index as i64 + delta;
-        let index = if self.looping { target.rem_euclid(n) } else { target.clamp(0, n - 1) };
+        let index = if self.looping {
+            target.rem_euclid(n)
+        } else {
+            target.clamp(0, n - 1)
+        };
         self.set_index(index as usize);
     }
 
@@ -95,7 +103,10 @@ impl TimeControl {
         }
         let now = self.timestamps[0] + self.clock;
         // The last timestamp not after the clock.
-        self.index = self.timestamps.partition_point(|&t| t <= now + 1e-9).saturating_sub(1);
+        self.index = self
+            .timestamps
+            .partition_point(|&t| t <= now + 1e-9)
+            .saturating_sub(1);
         self.index != before
     }
 }

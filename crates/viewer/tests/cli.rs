@@ -28,10 +28,17 @@ fn headless_render_writes_the_view_at_the_chosen_time() {
             .arg(&scene)
             .args(["--headless", "--size", "160x90", "--frame", frame, "--out"])
             .arg(dir.join(out))
-            .args(["--camera", r#"{"position":[0,0,0],"forward":[1,0.3,0],"fov_deg":90}"#])
+            .args([
+                "--camera",
+                r#"{"position":[0,0,0],"forward":[1,0.3,0],"fov_deg":90}"#,
+            ])
             .output()
             .unwrap();
-        assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+        assert!(
+            result.status.success(),
+            "{}",
+            String::from_utf8_lossy(&result.stderr)
+        );
         image::open(dir.join(out)).unwrap().to_rgba8()
     };
     let first = render("0", "t0.png");
@@ -42,7 +49,10 @@ fn headless_render_writes_the_view_at_the_chosen_time() {
     let lit = first.pixels().filter(|p| p.0[..3] != [0, 0, 0]).count();
     assert!(lit > 160 * 90 * 9 / 10, "{lit} of {} pixels lit", 160 * 90);
     // No temporary files are left beside the output.
-    let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names.len(), 3, "{names:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -56,17 +66,41 @@ fn bad_input_fails_with_a_message() {
     std::fs::write(&junk, b"GIF89a not a scene").unwrap();
     let out = dir.join("x.png");
     let cases: Vec<(Vec<&std::ffi::OsStr>, &str)> = vec![
-        (vec![junk.as_os_str()], "neither a .ply4d scene nor a 3DGS .ply"),
-        (vec![scene.as_os_str(), "--frame".as_ref(), "9".as_ref()], "out of range"),
-        (vec![scene.as_os_str(), "--camera".as_ref(), "{}".as_ref()], "invalid camera pose"),
-        (vec![scene.as_os_str(), "--size".as_ref(), "0x5".as_ref()], "--size"),
-        (vec![scene.as_os_str(), "--bogus".as_ref()], "unknown option"),
+        (
+            vec![junk.as_os_str()],
+            "neither a .ply4d scene nor a 3DGS .ply",
+        ),
+        (
+            vec![scene.as_os_str(), "--frame".as_ref(), "9".as_ref()],
+            "out of range",
+        ),
+        (
+            vec![scene.as_os_str(), "--camera".as_ref(), "{}".as_ref()],
+            "invalid camera pose",
+        ),
+        (
+            vec![scene.as_os_str(), "--size".as_ref(), "0x5".as_ref()],
+            "--size",
+        ),
+        (
+            vec![scene.as_os_str(), "--bogus".as_ref()],
+            "unknown option",
+        ),
     ];
     for (args, message) in cases {
-        let result = view().args(&args).args(["--headless", "--out"]).arg(&out).output().unwrap();
+        let result = view()
+            .args(&args)
+            .args(["--headless", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
         let stderr = String::from_utf8_lossy(&result.stderr);
         assert!(!result.status.success(), "{args:?} succeeded");
-        assert!(matches!(result.status.code(), Some(1 | 2)), "{args:?}: {:?}", result.status);
+        assert!(
+            matches!(result.status.code(), Some(1 | 2)),
+            "{args:?}: {:?}",
+            result.status
+        );
         assert!(stderr.contains(message), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{stderr}");
     }

@@ -41,7 +41,7 @@ fn write_scene(dir: &Path) -> PathBuf {
     path
 }
 
-fn harness(path: &Path) -> Harness<'static, ViewerApp> {
+fn open_viewer(path: &Path) -> Harness<'static, ViewerApp> {
     let egui_wgpu::WgpuSetup::CreateNew(setup) = egui_kittest::wgpu::default_wgpu_setup() else {
         panic!("egui_kittest's default set-up creates its own device");
     };
@@ -56,7 +56,10 @@ fn harness(path: &Path) -> Harness<'static, ViewerApp> {
 fn view_pixels(harness: &mut Harness<'static, ViewerApp>) -> RgbaImage {
     let window = harness.render().expect("the window renders on wgpu");
     let rect = harness.state().view_rect();
-    assert!(rect.width() > 100.0 && rect.height() > 100.0, "view rect {rect:?}");
+    assert!(
+        rect.width() > 100.0 && rect.height() > 100.0,
+        "view rect {rect:?}"
+    );
     image::imageops::crop_imm(
         &window,
         rect.min.x as u32,
@@ -76,7 +79,12 @@ fn lit_fraction(image: &RgbaImage) -> f64 {
 fn ball_box(camera: &ViewCamera, width: u32, height: u32, t: usize, margin: f64) -> [f64; 4] {
     let cam = camera.to_camera(width, height);
     let centre = ball_centre(t, TIMES);
-    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     // Splats reach a few standard deviations past the means: pad the radius.
     let reach = 1.6 * BALL_RADIUS;
     for dx in [-1.0, 1.0] {
@@ -84,7 +92,12 @@ fn ball_box(camera: &ViewCamera, width: u32, height: u32, t: usize, margin: f64)
             for dz in [-1.0, 1.0] {
                 let (uv, z) = cam.project(centre + DVec3::new(dx, dy, dz) * reach);
                 assert!(z > 0.0);
-                b = [b[0].min(uv.x), b[1].min(uv.y), b[2].max(uv.x), b[3].max(uv.y)];
+                b = [
+                    b[0].min(uv.x),
+                    b[1].min(uv.y),
+                    b[2].max(uv.x),
+                    b[3].max(uv.y),
+                ];
             }
         }
     }
@@ -99,14 +112,20 @@ fn inside(b: &[f64; 4], x: u32, y: u32) -> bool {
 #[test]
 fn scene_is_visible_and_time_controls_are_there() {
     let dir = TempDir::new("visible");
-    let mut harness = harness(&write_scene(&dir.0));
+    let mut harness = open_viewer(&write_scene(&dir.0));
     harness.run();
     assert_eq!(harness.state().error(), None);
     let view = view_pixels(&mut harness);
     let lit = lit_fraction(&view);
-    assert!(lit > 0.9, "the shell surrounds the viewpoint, so nearly every pixel is lit: {lit}");
+    assert!(
+        lit > 0.9,
+        "the shell surrounds the viewpoint, so nearly every pixel is lit: {lit}"
+    );
     // The ball is orange-red in front of the shell: some strongly red pixels.
-    let red = view.pixels().filter(|p| p.0[0] > 200 && p.0[2] < 60).count();
+    let red = view
+        .pixels()
+        .filter(|p| p.0[0] > 200 && p.0[2] < 60)
+        .count();
     assert!(red > 100, "the moving ball is visible: {red} red pixels");
     harness.get_by_label("time");
     harness.get_by_label("▶ Play");
@@ -119,10 +138,12 @@ fn scene_is_visible_and_time_controls_are_there() {
 #[test]
 fn moving_the_time_slider_changes_only_the_moving_region() {
     let dir = TempDir::new("slider");
-    let mut harness = harness(&write_scene(&dir.0));
+    let mut harness = open_viewer(&write_scene(&dir.0));
     harness.run();
     let before = view_pixels(&mut harness);
-    harness.get_by_label("time").set_value_accesskit((TIMES - 1) as f64);
+    harness
+        .get_by_label("time")
+        .set_value_accesskit((TIMES - 1) as f64);
     harness.run();
     assert_eq!(harness.state().time_index(), Some(TIMES - 1));
     let after = view_pixels(&mut harness);
@@ -146,7 +167,10 @@ fn moving_the_time_slider_changes_only_the_moving_region() {
             changed_outside.push((x, y));
         }
     }
-    assert!(changed_inside > 200, "the ball moved: {changed_inside} pixels changed");
+    assert!(
+        changed_inside > 200,
+        "the ball moved: {changed_inside} pixels changed"
+    );
     assert!(
         changed_outside.is_empty(),
         "{} pixels changed outside the ball's boxes {first:?} / {last:?}, e.g. {:?}",
@@ -158,7 +182,7 @@ fn moving_the_time_slider_changes_only_the_moving_region() {
 #[test]
 fn keys_move_and_reset_the_camera() {
     let dir = TempDir::new("keys");
-    let mut harness = harness(&write_scene(&dir.0));
+    let mut harness = open_viewer(&write_scene(&dir.0));
     harness.run();
     let start = view_pixels(&mut harness);
     harness.key_down(egui::Key::W);
@@ -166,12 +190,19 @@ fn keys_move_and_reset_the_camera() {
     harness.key_up(egui::Key::W);
     harness.run();
     let position = harness.state().camera().position;
-    assert!(position.x > 0.0 && position.y.abs() < 1e-9, "W moves along +x: {position:?}");
+    assert!(
+        position.x > 0.0 && position.y.abs() < 1e-9,
+        "W moves along +x: {position:?}"
+    );
     assert_ne!(view_pixels(&mut harness), start);
     harness.key_press(egui::Key::R);
     harness.run();
     assert_eq!(harness.state().camera().position, DVec3::ZERO);
-    assert_eq!(view_pixels(&mut harness), start, "R restores the panorama's view");
+    assert_eq!(
+        view_pixels(&mut harness),
+        start,
+        "R restores the panorama's view"
+    );
 }
 
 #[test]
@@ -182,7 +213,7 @@ fn corrupt_files_show_an_error_in_the_window() {
 
     let truncated = dir.0.join("truncated.ply4d");
     std::fs::write(&truncated, &bytes[..bytes.len() / 3]).unwrap();
-    let mut harness = harness(&truncated);
+    let mut harness = open_viewer(&truncated);
     harness.run();
     harness.get_by_label("Cannot show the scene");
     assert!(harness.state().error().unwrap().contains("truncated"));
@@ -190,9 +221,13 @@ fn corrupt_files_show_an_error_in_the_window() {
 
     let jpeg = dir.0.join("photo.ply");
     std::fs::write(&jpeg, b"\xff\xd8\xff\xe0\x00\x10JFIF\x00").unwrap();
-    let mut harness = harness(&jpeg);
+    let mut harness = open_viewer(&jpeg);
     harness.run();
-    assert!(harness.state().error().unwrap().contains("neither a .ply4d scene nor a 3DGS .ply"));
+    assert!(harness
+        .state()
+        .error()
+        .unwrap()
+        .contains("neither a .ply4d scene nor a 3DGS .ply"));
 
     // A damaged dynamic set: the scene opens, the error appears at that timestamp, and
     // going back to a good one recovers.
@@ -201,10 +236,12 @@ fn corrupt_files_show_an_error_in_the_window() {
     let last = flipped.len() - 100;
     flipped[last] ^= 0x5a;
     std::fs::write(&damaged, &flipped).unwrap();
-    let mut harness = harness(&damaged);
+    let mut harness = open_viewer(&damaged);
     harness.run();
     assert_eq!(harness.state().error(), None);
-    harness.get_by_label("time").set_value_accesskit((TIMES - 1) as f64);
+    harness
+        .get_by_label("time")
+        .set_value_accesskit((TIMES - 1) as f64);
     harness.run();
     assert!(harness.state().error().unwrap().contains("checksum"));
     harness.get_by_label("Cannot show the scene");
@@ -216,7 +253,7 @@ fn corrupt_files_show_an_error_in_the_window() {
 #[test]
 fn pasted_pose_moves_the_camera_to_a_real_scene() {
     let guitar = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/gs_guitar.ply");
-    let mut harness = harness(&guitar);
+    let mut harness = open_viewer(&guitar);
     harness.run();
     assert_eq!(harness.state().error(), None);
     harness.get_by_label("90854");
@@ -235,5 +272,8 @@ fn pasted_pose_moves_the_camera_to_a_real_scene() {
     let camera = harness.state().camera();
     assert!((camera.position - DVec3::new(3.0, -2.1, 0.2)).length() < 1e-9);
     let lit = lit_fraction(&view_pixels(&mut harness));
-    assert!(lit > 0.02 && lit < 0.9, "the guitar covers part of the view: {lit}");
+    assert!(
+        lit > 0.02 && lit < 0.9,
+        "the guitar covers part of the view: {lit}"
+    );
 }

@@ -71,7 +71,9 @@ fn parse() -> Result<Options, String> {
                 options.frames = 3;
             }
             "--json" => options.json = PathBuf::from(value()?),
-            "--frames" => options.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
+            "--frames" => {
+                options.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?
+            }
             "--sh-degree" => {
                 options.sh_degree = value()?.parse().map_err(|e| format!("--sh-degree: {e}"))?
             }
@@ -117,20 +119,29 @@ fn run_case(renderer: &mut FrameRenderer, count: usize, options: &Options) -> Re
     let mut camera = ViewCamera::panorama_viewpoint(&scene.extent);
     // Warm-up: pipelines, buffer growth.
     renderer.show_time(&scene, 0)?;
-    renderer.render(&camera.to_camera(options.width, options.height), &frame_options)?;
+    renderer.render(
+        &camera.to_camera(options.width, options.height),
+        &frame_options,
+    )?;
 
     let mut still = Vec::new();
     for _ in 0..options.frames {
         camera.drag(15.0, 0.0);
         let start = Instant::now();
-        renderer.render(&camera.to_camera(options.width, options.height), &frame_options)?;
+        renderer.render(
+            &camera.to_camera(options.width, options.height),
+            &frame_options,
+        )?;
         still.push(start.elapsed().as_secs_f64() * 1e3);
     }
     let mut playing = Vec::new();
     for frame in 0..options.frames {
         let start = Instant::now();
         renderer.show_time(&scene, (frame + 1) % TIMES)?;
-        renderer.render(&camera.to_camera(options.width, options.height), &frame_options)?;
+        renderer.render(
+            &camera.to_camera(options.width, options.height),
+            &frame_options,
+        )?;
         playing.push(start.elapsed().as_secs_f64() * 1e3);
     }
     drop(scene);
@@ -184,7 +195,8 @@ fn run() -> Result<(), String> {
         cases,
     };
     if let Some(parent) = options.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| format!("cannot create {}: {e}", parent.display()))?;
+        std::fs::create_dir_all(parent)
+            .map_err(|e| format!("cannot create {}: {e}", parent.display()))?;
     }
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
     let tmp = options.json.with_extension("json.tmp");
