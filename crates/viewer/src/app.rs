@@ -461,18 +461,22 @@ impl ViewerApp {
         };
         let time = &mut open.time;
         ui.horizontal(|ui| {
-            if ui.button("⏮").on_hover_text("Previous frame (,)").clicked() {
+            if ui
+                .button("< Frame")
+                .on_hover_text("Previous frame (,)")
+                .clicked()
+            {
                 time.step(-1);
             }
-            let label = if time.playing {
-                "⏸ Pause"
-            } else {
-                "▶ Play"
-            };
+            let label = if time.playing { "Pause" } else { "Play" };
             if ui.button(label).clicked() {
                 time.toggle_play();
             }
-            if ui.button("⏭").on_hover_text("Next frame (.)").clicked() {
+            if ui
+                .button("Frame >")
+                .on_hover_text("Next frame (.)")
+                .clicked()
+            {
                 time.step(1);
             }
             ui.checkbox(&mut time.looping, "Loop");

@@ -72,9 +72,9 @@ fn sniff(path: &Path) -> Result<Kind, String> {
         Err(format!("{} is empty", path.display()))
     } else {
         Err(format!(
-            "{} is neither a .ply4d scene nor a 3DGS .ply file (it starts with {:?})",
+            "{} is neither a .ply4d scene nor a 3DGS .ply file (it starts with \"{}\")",
             path.display(),
-            String::from_utf8_lossy(head)
+            head.escape_ascii()
         ))
     }
 }

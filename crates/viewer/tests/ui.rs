@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use eframe::egui::accesskit::Role;
 use eframe::{egui, egui_wgpu};
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
@@ -127,8 +128,8 @@ fn scene_is_visible_and_time_controls_are_there() {
         .filter(|p| p.0[0] > 200 && p.0[2] < 60)
         .count();
     assert!(red > 100, "the moving ball is visible: {red} red pixels");
-    harness.get_by_label("time");
-    harness.get_by_label("▶ Play");
+    harness.get_by_role_and_label(Role::Slider, "time");
+    harness.get_by_label("Play");
     harness.get_by_label("Loop");
     harness.get_by_label("Screenshot (PNG)");
     harness.get_by_label("20000");
@@ -142,7 +143,7 @@ fn moving_the_time_slider_changes_only_the_moving_region() {
     harness.run();
     let before = view_pixels(&mut harness);
     harness
-        .get_by_label("time")
+        .get_by_role_and_label(Role::Slider, "time")
         .set_value_accesskit((TIMES - 1) as f64);
     harness.run();
     assert_eq!(harness.state().time_index(), Some(TIMES - 1));
@@ -240,12 +241,14 @@ fn corrupt_files_show_an_error_in_the_window() {
     harness.run();
     assert_eq!(harness.state().error(), None);
     harness
-        .get_by_label("time")
+        .get_by_role_and_label(Role::Slider, "time")
         .set_value_accesskit((TIMES - 1) as f64);
     harness.run();
     assert!(harness.state().error().unwrap().contains("checksum"));
     harness.get_by_label("Cannot show the scene");
-    harness.get_by_label("time").set_value_accesskit(0.0);
+    harness
+        .get_by_role_and_label(Role::Slider, "time")
+        .set_value_accesskit(0.0);
     harness.run();
     assert_eq!(harness.state().error(), None);
 }
@@ -263,7 +266,7 @@ fn pasted_pose_moves_the_camera_to_a_real_scene() {
         forward: [-1.0, 0.0, 0.0],
         fov_deg: 70.0,
     };
-    let field = harness.get_by_role(egui::accesskit::Role::TextInput);
+    let field = harness.get_by_role(Role::TextInput);
     field.focus();
     field.type_text(&pose.to_line());
     harness.run();
