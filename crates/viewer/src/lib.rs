@@ -4,7 +4,7 @@
 //!
 //! - [`camera`]: fly/orbit camera maths, pose strings, the support hint.
 //! - [`scene`]: opening files and streaming dynamic sets per timestamp.
-//! - [`time`]: playback.
+//! - [`time`]: play, pause, loop and step through the timestamps.
 //! - [`render`]: the frame render path shared by the window, headless use and the bench.
 //! - [`headless`]: one view to an image, without a window.
 //! - [`app`]: the egui application.

@@ -21,7 +21,7 @@ pub const SEQUENCE_FPS: f64 = 30.0;
 const EXTENT_SAMPLES: usize = 200_000;
 
 enum Source {
-    Ply4d(Ply4dReader),
+    Ply4d(Box<Ply4dReader>),
     /// A single `.ply`: everything is static.
     Ply,
     /// Sorted per-frame files.
@@ -157,7 +157,7 @@ impl Scene {
                 Ok(Self {
                     sh_degree: reader.header().sh_degree,
                     static_set,
-                    source: Source::Ply4d(reader),
+                    source: Source::Ply4d(Box::new(reader)),
                     name,
                     timestamps,
                     extent,
