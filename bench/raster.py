@@ -88,8 +88,14 @@ def main() -> None:
         for w, h in sizes:
             cam = Camera.from_fov(90.0, w, h, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
             fwd, fb = frame_fns(g, cam, "wgpu")
-            wgpu_fwd = time_call(fwd, args.repeats)
-            wgpu_fb = time_call(fb, args.repeats)
+            try:
+                wgpu_fwd = time_call(fwd, args.repeats)
+                wgpu_fb = time_call(fb, args.repeats)
+            except (RuntimeError, ValueError) as e:
+                # e.g. a buffer beyond the adapter's storage binding limit
+                print(f"{n:>9} {f'{w}x{h}':>10}  wgpu failed: {e}", flush=True)
+                rows.append({"n": n, "width": w, "height": h, "error": str(e)})
+                continue
             work = float(n) * w * h
             torch_fwd = torch_fb = None
             note = ""

@@ -59,8 +59,7 @@ fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResult<&'a [f32]
         .map_err(|_| PyValueError::new_err(format!("{name} must be a C-contiguous float32 array")))
 }
 
-/// Flat float32 arrays (means, log_scales, quats, opacity_logits, sh), camera matrices.
-#[allow(clippy::too_many_arguments)]
+/// Borrows the five flat float32 arrays as a [`SceneInput`].
 fn scene<'a>(
     means: &'a PyReadonlyArray1<'_, f32>,
     log_scales: &'a PyReadonlyArray1<'_, f32>,

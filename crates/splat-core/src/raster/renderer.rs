@@ -189,6 +189,18 @@ fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     Ok(())
 }
 
+/// Errors when `m` intersections of `bytes_each` exceed one storage binding.
+fn check_intersections(device: &wgpu::Device, m: u32, bytes_each: u64) -> Result<(), RasterError> {
+    let binding_limit = device.limits().max_storage_buffer_binding_size;
+    if bytes_each * m as u64 > binding_limit {
+        return Err(RasterError::Gpu(format!(
+            "{m} tile intersections need more than this device's storage binding limit \
+             ({binding_limit} bytes); render at a lower resolution or with fewer Gaussians"
+        )));
+    }
+    Ok(())
+}
+
 /// A storage buffer that grows (never shrinks) to the largest size asked of it.
 struct GrowBuffer {
     label: &'static str,
@@ -375,16 +387,21 @@ impl Renderer {
         let (n, k) = scene.validate()?;
         let mut params = render_params(camera, settings, n, k);
         let device = self.ctx.device.clone();
+        let scene_bytes = 4 * (11 * n as u64 + 3 * (k * n) as u64);
+        let binding_limit = device.limits().max_storage_buffer_binding_size;
+        if scene_bytes > binding_limit {
+            return Err(RasterError::InvalidInput(format!(
+                "{n} Gaussians with {k} SH coefficients take {scene_bytes} bytes, more than this \
+                 device's storage binding limit ({binding_limit} bytes)"
+            )));
+        }
         let queue = self.ctx.queue.clone();
         let b = &mut self.buffers;
         let num_tiles = params.tiles_x * params.tiles_y;
         let pixels = camera.width as u64 * camera.height as u64;
 
         // Stage 1: projection, depth sort, tile-count scan.
-        let gaussians = b
-            .gaussians
-            .get(&device, 4 * (11 * n as u64 + 3 * (k * n) as u64))
-            .clone();
+        let gaussians = b.gaussians.get(&device, scene_bytes).clone();
         queue.write_buffer(&gaussians, 0, bytemuck::cast_slice(&scene.packed()));
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
         let n64 = n as u64;
@@ -471,13 +488,8 @@ impl Renderer {
             self.read_mapped(&staging, 4)?
         };
         let m = u32::from_le_bytes(total_bytes[..4].try_into().expect("4 bytes"));
-        // The backward pass keeps ten floats per intersection.
-        let limit = device.limits().max_buffer_size / (4 * ISECT_GRAD_FLOATS);
-        if m as u64 > limit {
-            return Err(RasterError::Gpu(format!(
-                "{m} tile intersections exceed this device's buffer limit ({limit})"
-            )));
-        }
+        // Every per-intersection array must fit one storage binding (128 MiB on lavapipe).
+        check_intersections(&device, m, 4)?;
         params.num_intersections = m;
         let b = &mut self.buffers;
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
@@ -637,6 +649,7 @@ impl Renderer {
         let b = &mut self.buffers;
         let v_buf = b.v_pixels.get(&device, 4 * v_pixels.len() as u64).clone();
         queue.write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
+        check_intersections(&device, frame.num_intersections, 4 * ISECT_GRAD_FLOATS)?;
         let m = frame.num_intersections as u64;
         let isect_grads = b
             .isect_grads
