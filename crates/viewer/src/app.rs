@@ -181,29 +181,14 @@ impl ViewerApp {
         &self.camera
     }
 
-    pub fn camera_mut(&mut self) -> &mut ViewCamera {
-        self.dirty = true;
-        &mut self.camera
-    }
-
     /// The shown timestamp index.
     pub fn time_index(&self) -> Option<usize> {
         self.opened.as_ref().map(|o| o.time.index)
     }
 
-    /// The last frame drawn, at render resolution.
-    pub fn last_frame(&self) -> Option<&RgbaImage> {
-        self.last_frame.as_ref()
-    }
-
     /// Where the scene was drawn in the last pass, in points.
     pub fn view_rect(&self) -> egui::Rect {
         self.view_rect
-    }
-
-    pub fn set_render_scale(&mut self, scale: f32) {
-        self.render_scale = scale.clamp(0.1, 1.0);
-        self.dirty = true;
     }
 
     fn handle_keys(&mut self, ctx: &egui::Context) {
@@ -494,6 +479,9 @@ impl ViewerApp {
                 time.set_index(index);
             }
             ui.label(format!("{:.2} s", time.seconds()));
+            if !open.scene.is_dynamic() {
+                ui.label("(static scene)");
+            }
         });
     }
 

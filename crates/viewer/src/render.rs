@@ -233,7 +233,7 @@ impl FrameRenderer {
     }
 
     /// Whether the packed scene fits the device's buffer limits (a message if not).
-    pub fn check_fits(&self) -> Result<(), String> {
+    fn check_fits(&self) -> Result<(), String> {
         let limits = self.renderer.context().device.limits();
         let allowed = limits
             .max_storage_buffer_binding_size

@@ -200,15 +200,6 @@ impl Scene {
         }
     }
 
-    /// Gaussians in dynamic set `t` without decoding it where the file says so.
-    pub fn dynamic_count(&self, t: usize) -> Option<u64> {
-        match &self.source {
-            Source::Ply4d(reader) => reader.sections().get(1 + t).map(|s| s.count),
-            Source::Ply => Some(0),
-            Source::Sequence(_) => None,
-        }
-    }
-
     /// The timestamp index nearest to `seconds`.
     pub fn index_at(&self, seconds: f64) -> usize {
         self.timestamps
@@ -242,7 +233,6 @@ mod tests {
         assert_eq!(opened.num_times(), 4);
         assert_eq!(opened.static_set.len(), 2_000);
         assert_eq!(opened.dynamic_set(3).unwrap().len(), 200);
-        assert_eq!(opened.dynamic_count(2), Some(200));
         assert!(opened.dynamic_set(4).is_err());
         assert_eq!(opened.index_at(1e9), 3);
 

@@ -73,7 +73,10 @@ fn view_pixels(harness: &mut Harness<'static, ViewerApp>) -> RgbaImage {
 }
 
 fn lit_fraction(image: &RgbaImage) -> f64 {
-    let lit = image.pixels().filter(|p| p.0[..3].iter().any(|&c| c > DARK)).count();
+    let lit = image
+        .pixels()
+        .filter(|p| p.0[..3].iter().any(|&c| c > DARK))
+        .count();
     lit as f64 / (image.width() * image.height()) as f64
 }
 
