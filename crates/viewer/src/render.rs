@@ -260,12 +260,17 @@ impl FrameRenderer {
         };
         let start = Instant::now();
         let device = self.renderer.context().device.clone();
+        // Allocations and bind groups the rasteriser creates outside its own error scopes
+        // report here, so that "too large for this GPU" is recognised.
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let out_of_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let result = self
             .renderer
             .forward(&self.packed.input(), camera, &settings);
-        if pollster::block_on(out_of_memory.pop()).is_some() {
-            let need = gaussian_buffer_bytes(self.packed.len(), self.packed.sh_degree);
+        let out_of_memory = pollster::block_on(out_of_memory.pop());
+        let invalid = pollster::block_on(validation.pop());
+        let need = gaussian_buffer_bytes(self.packed.len(), self.packed.sh_degree);
+        if out_of_memory.is_some() {
             return Err(too_large_message(
                 self.packed.len(),
                 need,
@@ -273,10 +278,26 @@ impl FrameRenderer {
                 &self.adapter.name,
             ));
         }
+        if let Some(error) = invalid {
+            let error = error.to_string();
+            if exceeds_buffer_limit(&error) {
+                let allowed = device.limits().max_storage_buffer_binding_size;
+                let message =
+                    too_large_message(self.packed.len(), need, Some(allowed), &self.adapter.name);
+                return Err(format!("{message} ({error})"));
+            }
+            return Err(format!("GPU error: {error}"));
+        }
         let (pixels, _intersections) = result.map_err(|e| e.to_string())?;
         self.last_render = start.elapsed();
         Ok(to_rgba8(&pixels, camera.width, camera.height))
     }
+}
+
+/// Whether a GPU error is a buffer over the device's size limits. The rasteriser's buffers
+/// grow with headroom, so a set just under the limit can still cross it there.
+fn exceeds_buffer_limit(error: &str) -> bool {
+    error.contains("buffer_binding_size") || error.contains("max_buffer_size")
 }
 
 /// The forward's float RGB (background already blended in) as opaque 8-bit RGBA.
@@ -359,5 +380,9 @@ mod tests {
         let msg = too_large_message(10, 300 << 20, Some(128 << 20), "lavapipe");
         assert!(msg.contains("300 MiB") && msg.contains("128 MiB") && msg.contains("draft preset"));
         assert!(too_large_message(10, 1, None, "gpu").contains("ran out of memory"));
+        let wgpu_message =
+            "Buffer binding 1 range 147500000 exceeds `max_*_buffer_binding_size` limit";
+        assert!(exceeds_buffer_limit(wgpu_message));
+        assert!(!exceeds_buffer_limit("BindGroup with '' label is invalid"));
     }
 }
