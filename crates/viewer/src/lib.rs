@@ -1,1 +1,34 @@
-//! pano4d-view: the 6-DoF viewer (issue 6 builds it here).
+//! pano4d-view: a 6-DoF viewer for `.ply4d` scenes (and plain 3DGS `.ply` files and
+//! folders of per-frame `.ply` files), drawn with splat-core's forward rasteriser on the
+//! wgpu device egui created.
+//!
+//! - [`camera`]: fly/orbit camera maths, pose strings, the support hint.
+//! - [`scene`]: opening files and streaming dynamic sets per timestamp.
+//! - [`time`]: play, pause, loop and step through the timestamps.
+//! - [`render`]: the frame render path shared by the window, headless use and the bench.
+//! - [`headless`]: one view to an image, without a window.
+//! - [`app`]: the egui application.
+//! - [`synthetic`]: a small generated 4D scene for tests and the benchmark.
+
+pub mod app;
+pub mod camera;
+pub mod headless;
+pub mod render;
+pub mod scene;
+pub mod synthetic;
+pub mod time;
+
+use std::sync::Arc;
+
+use eframe::egui_wgpu;
+
+/// egui's wgpu set-up with the adapter's own limits instead of WebGPU's defaults: scenes of
+/// millions of Gaussians need storage buffers larger than the default 128 MiB.
+pub fn full_limits(mut setup: egui_wgpu::WgpuSetupCreateNew) -> egui_wgpu::WgpuSetupCreateNew {
+    setup.device_descriptor = Arc::new(|adapter: &wgpu::Adapter| wgpu::DeviceDescriptor {
+        label: Some("pano4d-view device"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    });
+    setup
+}

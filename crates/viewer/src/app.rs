@@ -1,0 +1,559 @@
+//! The egui application: a view of the scene drawn by [`FrameRenderer`] on egui's own
+//! wgpu device, a time bar, and a side panel with counts, timings, camera and render
+//! settings. Errors (unreadable files, scenes too large for the GPU) are shown in the
+//! window instead of ending the program.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use eframe::egui;
+use eframe::egui_wgpu;
+use image::RgbaImage;
+
+use crate::camera::{
+    CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG,
+};
+use crate::render::{save_png, FrameOptions, FrameRenderer};
+use crate::scene::Scene;
+use crate::time::TimeControl;
+
+/// Frame-time smoothing for the fps read-out (weight of the newest frame).
+const FPS_SMOOTHING: f64 = 0.1;
+
+/// The rendered image as a texture egui draws.
+struct DisplayTexture {
+    texture: wgpu::Texture,
+    id: egui::TextureId,
+}
+
+impl DisplayTexture {
+    fn new(state: &egui_wgpu::RenderState, width: u32, height: u32) -> Self {
+        let texture = state.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("pano4d-view frame"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            // The rasteriser's colours are display values, like egui's own sRGB textures.
+            format: wgpu::TextureFormat::Rgba8UnormSrgb,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&Default::default());
+        let id = state.renderer.write().register_native_texture(
+            &state.device,
+            &view,
+            wgpu::FilterMode::Linear,
+        );
+        Self { texture, id }
+    }
+
+    fn size(&self) -> [u32; 2] {
+        [self.texture.width(), self.texture.height()]
+    }
+
+    fn upload(&self, state: &egui_wgpu::RenderState, image: &RgbaImage) {
+        state.queue.write_texture(
+            self.texture.as_image_copy(),
+            image.as_raw(),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * image.width()),
+                rows_per_image: Some(image.height()),
+            },
+            self.texture.size(),
+        );
+    }
+
+    fn free(self, state: &egui_wgpu::RenderState) {
+        state.renderer.write().free_texture(&self.id);
+    }
+}
+
+/// A scene together with its playback state.
+struct OpenScene {
+    scene: Scene,
+    time: TimeControl,
+}
+
+/// The viewer window's state.
+pub struct ViewerApp {
+    opened: Option<OpenScene>,
+    renderer: Option<FrameRenderer>,
+    /// Shown in place of the scene; the reason nothing (or an old frame) is drawn.
+    error: Option<String>,
+    camera: ViewCamera,
+    extent: SceneExtent,
+    options: FrameOptions,
+    /// Background colour as shown in the picker (display values).
+    background: [u8; 3],
+    /// Fraction of the window's pixels rendered (below 1 for slow adapters).
+    render_scale: f32,
+    display: Option<DisplayTexture>,
+    /// The last frame drawn, kept for screenshots.
+    last_frame: Option<RgbaImage>,
+    /// Something changed since the last frame was drawn.
+    dirty: bool,
+    pose_text: String,
+    status: String,
+    frame_seconds: f64,
+    /// Where the scene was drawn in the last pass, in points.
+    view_rect: egui::Rect,
+}
+
+impl ViewerApp {
+    /// Builds the app on egui's wgpu device and opens `path` if given.
+    pub fn new(cc: &eframe::CreationContext<'_>, path: Option<&Path>) -> Self {
+        let renderer = match &cc.wgpu_render_state {
+            Some(state) => FrameRenderer::on_device(
+                state.device.clone(),
+                state.queue.clone(),
+                &state.adapter.get_info(),
+            ),
+            None => Err("pano4d-view needs eframe's wgpu renderer, which is not running".into()),
+        };
+        let extent = SceneExtent {
+            median_distance: 1.0,
+        };
+        let mut app = Self {
+            opened: None,
+            error: None,
+            camera: ViewCamera::panorama_viewpoint(&extent),
+            extent,
+            options: FrameOptions::default(),
+            background: [0; 3],
+            render_scale: 1.0,
+            display: None,
+            last_frame: None,
+            dirty: true,
+            pose_text: String::new(),
+            status: String::new(),
+            frame_seconds: 0.0,
+            view_rect: egui::Rect::NOTHING,
+            renderer: None,
+        };
+        match renderer {
+            Ok(r) => app.renderer = Some(r),
+            Err(e) => app.error = Some(e),
+        }
+        if let Some(path) = path {
+            app.open(path);
+        }
+        app
+    }
+
+    /// Opens a scene, replacing the current one; failures are shown in the window.
+    pub fn open(&mut self, path: &Path) {
+        match Scene::open(path) {
+            Ok(scene) => {
+                self.extent = scene.extent;
+                self.camera = ViewCamera::panorama_viewpoint(&self.extent);
+                if let Some(renderer) = &mut self.renderer {
+                    renderer.load_scene(&scene);
+                }
+                self.opened = Some(OpenScene {
+                    time: TimeControl::new(&scene.timestamps),
+                    scene,
+                });
+                if self.renderer.is_some() {
+                    self.error = None;
+                }
+            }
+            Err(e) => {
+                self.opened = None;
+                self.last_frame = None;
+                self.error = Some(format!("Cannot open {}: {e}", path.display()));
+            }
+        }
+        self.dirty = true;
+    }
+
+    /// The error shown in the window, if any.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    pub fn camera(&self) -> &ViewCamera {
+        &self.camera
+    }
+
+    /// The shown timestamp index.
+    pub fn time_index(&self) -> Option<usize> {
+        self.opened.as_ref().map(|o| o.time.index)
+    }
+
+    /// Where the scene was drawn in the last pass, in points.
+    pub fn view_rect(&self) -> egui::Rect {
+        self.view_rect
+    }
+
+    fn handle_keys(&mut self, ctx: &egui::Context) {
+        if ctx.egui_wants_keyboard_input() {
+            return;
+        }
+        let (input, dt, reset, toggle_mode, toggle_play, step) = ctx.input(|i| {
+            let axis = |plus: egui::Key, minus: egui::Key| {
+                i.key_down(plus) as i32 as f64 - i.key_down(minus) as i32 as f64
+            };
+            let input = MoveInput {
+                forward: axis(egui::Key::W, egui::Key::S),
+                right: axis(egui::Key::D, egui::Key::A),
+                up: axis(egui::Key::E, egui::Key::Q),
+                fast: i.modifiers.shift,
+            };
+            let step =
+                i.key_pressed(egui::Key::Period) as i64 - i.key_pressed(egui::Key::Comma) as i64;
+            (
+                input,
+                i.stable_dt as f64,
+                i.key_pressed(egui::Key::R),
+                i.key_pressed(egui::Key::Tab),
+                i.key_pressed(egui::Key::Space),
+                step,
+            )
+        });
+        if !input.is_idle() {
+            self.camera.step(&input, dt.min(0.1));
+            self.dirty = true;
+            ctx.request_repaint();
+        }
+        if reset {
+            self.camera = ViewCamera::panorama_viewpoint(&self.extent);
+            self.dirty = true;
+        }
+        if toggle_mode {
+            let mode = match self.camera.mode {
+                CameraMode::Fly => CameraMode::Orbit,
+                CameraMode::Orbit => CameraMode::Fly,
+            };
+            self.camera.set_mode(mode);
+        }
+        if let Some(open) = &mut self.opened {
+            if toggle_play {
+                open.time.toggle_play();
+            }
+            if step != 0 {
+                open.time.step(step);
+            }
+        }
+    }
+
+    fn advance_time(&mut self, ctx: &egui::Context) {
+        let dt = ctx.input(|i| i.stable_dt as f64);
+        if let Some(open) = &mut self.opened {
+            if open.time.advance(dt) {
+                self.dirty = true;
+            }
+            if open.time.playing {
+                ctx.request_repaint();
+            }
+        }
+    }
+
+    /// Draws a new frame if anything changed; errors replace the view with a message.
+    fn render_if_needed(
+        &mut self,
+        state: Option<&egui_wgpu::RenderState>,
+        width: u32,
+        height: u32,
+    ) {
+        let (Some(renderer), Some(open), Some(state)) = (&mut self.renderer, &self.opened, state)
+        else {
+            return;
+        };
+        let size_changed = self
+            .display
+            .as_ref()
+            .is_none_or(|d| d.size() != [width, height]);
+        let time_changed = renderer.shown_time() != Some(open.time.index);
+        if !(self.dirty || size_changed || time_changed) {
+            return;
+        }
+        self.dirty = false;
+        let frame = renderer
+            .show_time(&open.scene, open.time.index)
+            .and_then(|()| renderer.render(&self.camera.to_camera(width, height), &self.options));
+        match frame {
+            Ok(image) => {
+                if size_changed {
+                    if let Some(old) = self.display.take() {
+                        old.free(state);
+                    }
+                    self.display = Some(DisplayTexture::new(state, width, height));
+                }
+                if let Some(display) = &self.display {
+                    display.upload(state, &image);
+                }
+                self.last_frame = Some(image);
+                self.error = None;
+            }
+            Err(e) => {
+                self.error = Some(e);
+                // Do not retry a failing frame on every repaint; a change retries it.
+                if let Some(display) = self.display.take() {
+                    display.free(state);
+                }
+            }
+        }
+    }
+
+    fn screenshot(&mut self) {
+        let (Some(frame), Some(open)) = (&self.last_frame, &self.opened) else {
+            self.status = "Nothing to save yet".into();
+            return;
+        };
+        let stem = Path::new(&open.scene.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        let mut n = 0;
+        let path = loop {
+            let candidate = PathBuf::from(format!(
+                "pano4d-view-{stem}-t{:04}-{n}.png",
+                open.time.index
+            ));
+            if !candidate.exists() {
+                break candidate;
+            }
+            n += 1;
+        };
+        self.status = match save_png(frame, &path) {
+            Ok(()) => format!("Saved {}", path.display()),
+            Err(e) => e,
+        };
+    }
+
+    fn side_panel(&mut self, ui: &mut egui::Ui) {
+        ui.heading("pano4d-view");
+        if let Some(open) = &self.opened {
+            ui.label(open.scene.name.as_str());
+        }
+        ui.separator();
+        egui::Grid::new("stats").num_columns(2).show(ui, |ui| {
+            let (statics, dynamics) = self.renderer.as_ref().map_or((0, 0), |r| r.counts());
+            ui.label("Static Gaussians");
+            ui.label(statics.to_string());
+            ui.end_row();
+            ui.label("Dynamic Gaussians");
+            ui.label(dynamics.to_string());
+            ui.end_row();
+            ui.label("fps");
+            let fps = if self.frame_seconds > 0.0 {
+                1.0 / self.frame_seconds
+            } else {
+                0.0
+            };
+            ui.label(format!("{fps:.1}"));
+            ui.end_row();
+            ui.label("Frame time");
+            let render = self
+                .renderer
+                .as_ref()
+                .map_or(Duration::ZERO, |r| r.last_render_time());
+            ui.label(format!("{:.1} ms", render.as_secs_f64() * 1e3));
+            ui.end_row();
+            ui.label("Adapter");
+            ui.label(
+                self.renderer
+                    .as_ref()
+                    .map_or("none", |r| r.adapter().name.as_str()),
+            );
+            ui.end_row();
+        });
+        ui.separator();
+        ui.label("Camera");
+        ui.horizontal(|ui| {
+            let mut mode = self.camera.mode;
+            ui.radio_value(&mut mode, CameraMode::Fly, "Fly");
+            ui.radio_value(&mut mode, CameraMode::Orbit, "Orbit");
+            if mode != self.camera.mode {
+                self.camera.set_mode(mode);
+            }
+            if ui.button("Reset (R)").clicked() {
+                self.camera = ViewCamera::panorama_viewpoint(&self.extent);
+                self.dirty = true;
+            }
+        });
+        let fov = ui.add(
+            egui::Slider::new(&mut self.camera.fov_deg, MIN_FOV_DEG..=MAX_FOV_DEG).text("FOV °"),
+        );
+        let speed = self.extent.walking_speed();
+        ui.add(
+            egui::Slider::new(&mut self.camera.speed, speed * 0.01..=speed * 100.0)
+                .logarithmic(true)
+                .text("speed"),
+        );
+        self.dirty |= fov.changed();
+        ui.label("Pose (for pano4d render --camera):");
+        let pose_line = self.camera.pose().to_line();
+        ui.horizontal(|ui| {
+            if ui.button("Copy").clicked() {
+                ui.ctx().copy_text(pose_line.clone());
+                self.status = "Pose copied".into();
+            }
+            if ui
+                .button("Paste pose")
+                .on_hover_text("Apply the pose typed below")
+                .clicked()
+            {
+                match CameraPose::parse(&self.pose_text) {
+                    Ok(pose) => {
+                        self.camera.set_pose(&pose);
+                        self.dirty = true;
+                        self.status = "Pose applied".into();
+                    }
+                    Err(e) => self.status = e,
+                }
+            }
+        });
+        ui.add(egui::Label::new(egui::RichText::new(&pose_line).monospace().small()).wrap());
+        ui.add(egui::TextEdit::singleline(&mut self.pose_text).hint_text("paste a pose line"));
+        ui.separator();
+        ui.label("Rendering");
+        ui.horizontal(|ui| {
+            ui.label("Background");
+            if egui::color_picker::color_edit_button_srgb(ui, &mut self.background).changed() {
+                self.options.background = self.background.map(|c| c as f32 / 255.0);
+                self.dirty = true;
+            }
+        });
+        let scale =
+            ui.add(egui::Slider::new(&mut self.options.splat_scale, 0.1..=2.0).text("splat scale"));
+        let resolution =
+            ui.add(egui::Slider::new(&mut self.render_scale, 0.1..=1.0).text("resolution"));
+        self.dirty |= scale.changed() || resolution.changed();
+        if ui.button("Screenshot (PNG)").clicked() {
+            self.screenshot();
+        }
+        if !self.status.is_empty() {
+            ui.label(&self.status);
+        }
+        ui.separator();
+        ui.label(
+            "W/A/S/D/Q/E move (shift: faster) · drag: look · scroll: speed (orbit: distance) · \
+             ctrl+scroll: FOV · Tab: fly/orbit · R: reset · space: play · , / .: frame step",
+        );
+    }
+
+    fn time_panel(&mut self, ui: &mut egui::Ui) {
+        let Some(open) = &mut self.opened else {
+            ui.label("No scene");
+            return;
+        };
+        let time = &mut open.time;
+        ui.horizontal(|ui| {
+            if ui
+                .button("< Frame")
+                .on_hover_text("Previous frame (,)")
+                .clicked()
+            {
+                time.step(-1);
+            }
+            let label = if time.playing { "Pause" } else { "Play" };
+            if ui.button(label).clicked() {
+                time.toggle_play();
+            }
+            if ui
+                .button("Frame >")
+                .on_hover_text("Next frame (.)")
+                .clicked()
+            {
+                time.step(1);
+            }
+            ui.checkbox(&mut time.looping, "Loop");
+            ui.add(
+                egui::DragValue::new(&mut time.speed)
+                    .range(0.05..=8.0)
+                    .speed(0.01)
+                    .suffix("×"),
+            );
+            let mut index = time.index;
+            let last = time.count() - 1;
+            let slider = egui::Slider::new(&mut index, 0..=last).text("time");
+            ui.add_enabled(last > 0, slider);
+            if index != time.index {
+                time.set_index(index);
+            }
+            ui.label(format!("{:.2} s", time.seconds()));
+            if !open.scene.is_dynamic() {
+                ui.label("(static scene)");
+            }
+        });
+    }
+
+    fn view(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
+        let rect = ui.available_rect_before_wrap();
+        self.view_rect = rect;
+        let response = ui.interact(
+            rect,
+            ui.make_persistent_id("view"),
+            egui::Sense::click_and_drag(),
+        );
+        if response.dragged() {
+            let delta = response.drag_delta();
+            self.camera.drag(delta.x as f64, delta.y as f64);
+            self.dirty = true;
+        }
+        if response.hovered() {
+            let (scroll, ctrl) =
+                ui.input(|i| (i.smooth_scroll_delta.y as f64, i.modifiers.command));
+            if scroll != 0.0 {
+                if ctrl {
+                    self.camera.zoom(scroll / 50.0);
+                } else {
+                    self.camera.scroll(scroll / 50.0);
+                }
+                self.dirty = true;
+            }
+        }
+        let ppp = ui.ctx().pixels_per_point();
+        let width = ((rect.width() * ppp * self.render_scale).round() as u32).max(1);
+        let height = ((rect.height() * ppp * self.render_scale).round() as u32).max(1);
+        self.render_if_needed(frame.wgpu_render_state(), width, height);
+
+        if let Some(error) = &self.error {
+            ui.scope_builder(egui::UiBuilder::new().max_rect(rect.shrink(16.0)), |ui| {
+                ui.heading("Cannot show the scene");
+                ui.colored_label(ui.visuals().error_fg_color, error.as_str());
+            });
+            return;
+        }
+        if let Some(display) = &self.display {
+            let image = egui::Image::new(egui::load::SizedTexture::new(display.id, rect.size()));
+            ui.put(rect, image);
+        }
+        if let Some(hint) = self.camera.support_hint(&self.extent) {
+            let at = rect.left_top() + egui::vec2(8.0, 8.0);
+            ui.painter().text(
+                at,
+                egui::Align2::LEFT_TOP,
+                hint,
+                egui::FontId::proportional(14.0),
+                ui.visuals().warn_fg_color,
+            );
+        }
+    }
+}
+
+impl eframe::App for ViewerApp {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        let dt = ctx.input(|i| i.stable_dt as f64);
+        self.frame_seconds += FPS_SMOOTHING * (dt - self.frame_seconds);
+        self.handle_keys(&ctx);
+        self.advance_time(&ctx);
+        egui::Panel::right("settings")
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.side_panel(ui));
+            });
+        egui::Panel::bottom("time").show(ui, |ui| self.time_panel(ui));
+        egui::CentralPanel::default()
+            .frame(egui::Frame::NONE)
+            .show(ui, |ui| self.view(ui, frame));
+    }
+}
