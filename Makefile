@@ -31,9 +31,8 @@ $(STAMPS)/extension: $(RUST_SOURCES) $(STAMPS)/python
 	@touch $@
 
 $(VENV)/bin/pano4d-view: $(RUST_SOURCES)
-	cargo build --release --locked -p pano4d-viewer
-	@if [ -x target/release/pano4d-view ]; then install -m 755 target/release/pano4d-view $@; \
-	 else echo "pano4d-view: not built yet (issue #6)"; fi
+	cargo build --release --locked -p pano4d-viewer --bin pano4d-view
+	install -m 755 target/release/pano4d-view $@
 
 demo: setup
 	$(VENV)/bin/pano4d demo demo
