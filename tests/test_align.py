@@ -10,13 +10,7 @@ from pano4d.lift.align import DepthAligner
 from pano4d.lift.depth import layout_prior, sample_equirect_depth
 from pano4d.sphere import view_layout
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -24,14 +24,7 @@ from pano4d.lift.depth import (
 from pano4d.lift.features import FeatureError, make_feature_model
 from pano4d.sphere import equirect_directions, view_layout
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    # Two shared cores: torch's intra-op threads only contend with each other here.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _quiet_transformers() -> None:

@@ -27,13 +27,7 @@ from pano4d.lift.optimize import (
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _render(g: Gaussians, camera, background=None):  # type: ignore[no-untyped-def]
