@@ -166,14 +166,7 @@ impl FrameRenderer {
         device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
             eprintln!("pano4d-view: wgpu error: {e}");
         }));
-        let adapter = AdapterSummary {
-            name: info.name.clone(),
-            backend: format!("{:?}", info.backend).to_lowercase(),
-            device_type: format!("{:?}", info.device_type),
-            driver: format!("{} {}", info.driver, info.driver_info)
-                .trim()
-                .to_string(),
-        };
+        let adapter = AdapterSummary::from(info);
         Self::with_context(GpuContext {
             device,
             queue,

@@ -20,6 +20,19 @@ pub struct AdapterSummary {
     pub driver: String,
 }
 
+impl From<&wgpu::AdapterInfo> for AdapterSummary {
+    fn from(info: &wgpu::AdapterInfo) -> Self {
+        Self {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend).to_lowercase(),
+            device_type: format!("{:?}", info.device_type),
+            driver: format!("{} {}", info.driver, info.driver_info)
+                .trim()
+                .to_string(),
+        }
+    }
+}
+
 /// A device and queue on the chosen adapter.
 pub struct GpuContext {
     pub device: wgpu::Device,
@@ -103,14 +116,7 @@ impl GpuContext {
         Ok(Self {
             device,
             queue,
-            adapter: AdapterSummary {
-                name: info.name.clone(),
-                backend: format!("{:?}", info.backend).to_lowercase(),
-                device_type: format!("{:?}", info.device_type),
-                driver: format!("{} {}", info.driver, info.driver_info)
-                    .trim()
-                    .to_string(),
-            },
+            adapter: AdapterSummary::from(&info),
         })
     }
 }
