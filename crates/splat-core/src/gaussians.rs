@@ -24,6 +24,18 @@ pub struct GaussianSet {
 }
 
 impl GaussianSet {
+    /// An empty set of `sh_degree` with room for `n` Gaussians.
+    pub fn with_capacity(sh_degree: u32, n: usize) -> Self {
+        Self {
+            sh_degree,
+            means: Vec::with_capacity(n),
+            log_scales: Vec::with_capacity(n),
+            quats: Vec::with_capacity(n),
+            opacity_logits: Vec::with_capacity(n),
+            sh: Vec::with_capacity(n * sh_coeffs(sh_degree) * 3),
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.means.len()
     }

@@ -351,14 +351,7 @@ fn decode_standard(
 
     let n = vertex.count;
     let body = &bytes[ranges[vi].clone()];
-    let mut set = GaussianSet {
-        sh_degree,
-        means: Vec::with_capacity(n),
-        log_scales: Vec::with_capacity(n),
-        quats: Vec::with_capacity(n),
-        opacity_logits: Vec::with_capacity(n),
-        sh: Vec::with_capacity(n * k * 3),
-    };
+    let mut set = GaussianSet::with_capacity(sh_degree, n);
     // Every vertex property is float32, so byte offsets are 4 × float indices; converting a
     // whole record at once avoids a bounds-checked slice per field.
     let index = |o: usize| o / 4;
@@ -491,14 +484,7 @@ fn decode_compressed(
 
     let chunk_body = &bytes[ranges[ci].clone()];
     let vertex_body = &bytes[ranges[vi].clone()];
-    let mut set = GaussianSet {
-        sh_degree,
-        means: Vec::with_capacity(n),
-        log_scales: Vec::with_capacity(n),
-        quats: Vec::with_capacity(n),
-        opacity_logits: Vec::with_capacity(n),
-        sh: Vec::with_capacity(n * k * 3),
-    };
+    let mut set = GaussianSet::with_capacity(sh_degree, n);
     for i in 0..n {
         let record = &vertex_body[i * vertex.stride..(i + 1) * vertex.stride];
         let c = i / COMPRESSED_CHUNK;
