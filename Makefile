@@ -49,6 +49,7 @@ lint:
 	$(VENV)/bin/ruff check python tests bench scripts
 	cargo fmt --all --check
 	cargo clippy --release --locked --workspace --all-targets -- -D warnings
+	cargo clippy --release --locked -p splat-core --features python -- -D warnings
 
 bench: setup
 	$(PY) bench/synth.py

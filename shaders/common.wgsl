@@ -20,6 +20,13 @@ struct RenderParams {
     sh_coeffs: u32,
     antialiased: u32,
     num_intersections: u32,
+    // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a resident scene
+    // keeps room for its largest dynamic set).
+    gaussian_stride: u32,
+    // Added to every log-scale as it is read (the viewer's splat-scale slider; 0 in training).
+    log_scale_offset: f32,
+    pad0: u32,
+    pad1: u32,
 }
 
 const TILE_SIZE: u32 = 16u;

@@ -1,5 +1,6 @@
 // Per-Gaussian maths shared by the projection (forward) and its backward pass.
-// Requires `params` and `gaussians` bindings in the including shader.
+// Requires `params` and `gaussians` bindings in the including shader; the Gaussian buffer
+// has SoA sections of `params.gaussian_stride` entries.
 
 struct GaussianOffsets {
     means: u32,
@@ -24,7 +25,7 @@ fn load_gaussian(i: u32, o: GaussianOffsets) -> Gaussian {
     let m = vec3<f32>(gaussians[o.means + 3u * i], gaussians[o.means + 3u * i + 1u],
                       gaussians[o.means + 3u * i + 2u]);
     let s = vec3<f32>(gaussians[o.log_scales + 3u * i], gaussians[o.log_scales + 3u * i + 1u],
-                      gaussians[o.log_scales + 3u * i + 2u]);
+                      gaussians[o.log_scales + 3u * i + 2u]) + params.log_scale_offset;
     let q = vec4<f32>(gaussians[o.quats + 4u * i], gaussians[o.quats + 4u * i + 1u],
                       gaussians[o.quats + 4u * i + 2u], gaussians[o.quats + 4u * i + 3u]);
     return Gaussian(m, s, q, gaussians[o.opacity + i]);

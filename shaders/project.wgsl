@@ -24,7 +24,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if i >= n {
         return;
     }
-    let offs = gaussian_offsets(n);
+    let offs = gaussian_offsets(params.gaussian_stride);
     let g = load_gaussian(i, offs);
     let num_sh = params.sh_coeffs * 3u;
     var finite = gaussian_is_finite(g);

@@ -31,7 +31,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     let gid = depth_order[i];
-    let offs = gaussian_offsets(n);
+    let offs = gaussian_offsets(params.gaussian_stride);
+    // Gradients are packed densely: sections of n.
+    let grad_offs = gaussian_offsets(n);
     let k_count = params.sh_coeffs;
     let count = tile_counts[gid];
 
@@ -43,14 +45,14 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         }
     }
     if count == 0u {
-        write_vec3(offs.means + 3u * gid, vec3<f32>(0.0));
-        write_vec3(offs.log_scales + 3u * gid, vec3<f32>(0.0));
+        write_vec3(grad_offs.means + 3u * gid, vec3<f32>(0.0));
+        write_vec3(grad_offs.log_scales + 3u * gid, vec3<f32>(0.0));
         for (var c = 0u; c < 4u; c++) {
-            grads[offs.quats + 4u * gid + c] = 0.0;
+            grads[grad_offs.quats + 4u * gid + c] = 0.0;
         }
-        grads[offs.opacity + gid] = 0.0;
+        grads[grad_offs.opacity + gid] = 0.0;
         for (var k = 0u; k < k_count * 3u; k++) {
-            grads[offs.sh + gid * k_count * 3u + k] = 0.0;
+            grads[grad_offs.sh + gid * k_count * 3u + k] = 0.0;
         }
         return;
     }
@@ -185,15 +187,15 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     for (var k = 0u; k < k_count; k++) {
         let base = offs.sh + (gid * k_count + k) * 3u;
         let coeff = vec3<f32>(gaussians[base], gaussians[base + 1u], gaussians[base + 2u]);
-        write_vec3(base, basis[k] * v_rgb);
+        write_vec3(grad_offs.sh + (gid * k_count + k) * 3u, basis[k] * v_rgb);
         v_dir += basis_grad[k] * dot(coeff, v_rgb);
     }
     v_mean += (v_dir - dir * dot(dir, v_dir)) / dist;
 
-    write_vec3(offs.means + 3u * gid, v_mean);
-    write_vec3(offs.log_scales + 3u * gid, v_log_scale);
+    write_vec3(grad_offs.means + 3u * gid, v_mean);
+    write_vec3(grad_offs.log_scales + 3u * gid, v_log_scale);
     for (var c = 0u; c < 4u; c++) {
-        grads[offs.quats + 4u * gid + c] = v_quat[c];
+        grads[grad_offs.quats + 4u * gid + c] = v_quat[c];
     }
-    grads[offs.opacity + gid] = v_logit;
+    grads[grad_offs.opacity + gid] = v_logit;
 }

@@ -190,3 +190,13 @@ def test_dir_round_trip(t: tuple[float, float, float]) -> None:
     u, v = sphere.dir_to_equirect(d, W, H)
     back = sphere.equirect_to_dir(u, v, W, H)
     assert torch.allclose(back, d, atol=1e-9)
+
+
+def test_matched_view_size_matches_the_panorama_pixel_at_the_view_centre() -> None:
+    # An 80° view spans 910 pixels of a 4096-wide panorama, 228 of a 1024-wide one.
+    assert sphere.matched_view_size(4096, 80.0) == 912
+    assert sphere.matched_view_size(1024, 80.0) == 224
+    assert sphere.matched_view_size(64, 10.0) == 16  # never below one multiple
+    # Averaged over the view, one view pixel spans one panorama pixel.
+    side = sphere.matched_view_size(4096, 80.0, multiple=1)
+    assert math.radians(80.0) / side == pytest.approx(2 * math.pi / 4096, rel=1e-3)

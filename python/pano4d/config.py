@@ -64,7 +64,7 @@ PRESETS: dict[str, dict[str, int | float | bool]] = {
         "view_size": 1024,
         "init_stride": 1,
         "align_iterations": 1000,
-        "gaussian_iterations": 7000,
+        "gaussian_iterations": 10_000,
         "max_gaussians": 4_000_000,
         "sh_degree": 3,
         "densify": True,

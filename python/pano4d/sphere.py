@@ -122,6 +122,13 @@ def view_layout(n: int = 20, fov_deg: float = 80.0, size: int = 512) -> list[Cam
     return [Camera.from_fov(fov_deg, size, size, (0.0, 0.0, 0.0), d) for d in view_directions(n)]
 
 
+def matched_view_size(width: int, fov_deg: float, multiple: int = 16) -> int:
+    """Square view side (pixels) whose pixels, averaged over the view, span one pixel of a
+    ``width``-wide panorama, rounded to ``multiple``: larger views only resample its pixels."""
+    matched = width * fov_deg / 360.0
+    return max(multiple, round(matched / multiple) * multiple)
+
+
 def views_seeing(cameras: list[Camera], dirs: torch.Tensor) -> torch.Tensor:
     """Bool (n_views, ...) : which cameras see each direction (..., 3) inside their image."""
     out = []

@@ -44,6 +44,16 @@ impl GaussianSet {
         self.means.is_empty()
     }
 
+    /// Appends `other`'s Gaussians (of the same SH degree) after these.
+    pub fn extend_from(&mut self, other: &GaussianSet) {
+        debug_assert!(other.is_empty() || other.sh_degree == self.sh_degree);
+        self.means.extend_from_slice(&other.means);
+        self.log_scales.extend_from_slice(&other.log_scales);
+        self.quats.extend_from_slice(&other.quats);
+        self.opacity_logits.extend_from_slice(&other.opacity_logits);
+        self.sh.extend_from_slice(&other.sh);
+    }
+
     /// Checks that every array has the length `len()` implies.
     pub fn validate(&self) -> Result<(), String> {
         let n = self.len();

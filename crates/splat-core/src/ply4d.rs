@@ -555,12 +555,7 @@ impl Ply4dReader {
     pub fn read_at(&self, t: usize) -> Result<GaussianSet> {
         self.check_time(t)?;
         let mut set = self.read_static()?;
-        let dynamic = self.read_dynamic(t)?;
-        set.means.extend(dynamic.means);
-        set.log_scales.extend(dynamic.log_scales);
-        set.quats.extend(dynamic.quats);
-        set.opacity_logits.extend(dynamic.opacity_logits);
-        set.sh.extend(dynamic.sh);
+        set.extend_from(&self.read_dynamic(t)?);
         Ok(set)
     }
 

@@ -4,46 +4,45 @@
 //! window instead of ending the program.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use eframe::egui;
 use eframe::egui_wgpu;
-use image::RgbaImage;
 
 use crate::camera::{
     CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG,
 };
 use crate::render::{save_png, FrameOptions, FrameRenderer};
 use crate::scene::Scene;
+use crate::stream::DynamicStream;
 use crate::time::TimeControl;
 
 /// Frame-time smoothing for the fps read-out (weight of the newest frame).
 const FPS_SMOOTHING: f64 = 0.1;
 
-/// The rendered image as a texture egui draws.
+/// The texture the scene is drawn into and egui shows.
 struct DisplayTexture {
     texture: wgpu::Texture,
     id: egui::TextureId,
 }
 
 impl DisplayTexture {
-    fn new(state: &egui_wgpu::RenderState, width: u32, height: u32) -> Self {
-        let texture = state.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("pano4d-view frame"),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            // The rasteriser's colours are display values, like egui's own sRGB textures.
-            format: wgpu::TextureFormat::Rgba8UnormSrgb,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
+    fn new(
+        state: &egui_wgpu::RenderState,
+        renderer: &FrameRenderer,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        let texture = renderer.create_target(width, height);
+        // The rasteriser's colours are display values: an sRGB view makes egui decode them
+        // as it decodes its own images.
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            format: Some(wgpu::TextureFormat::Rgba8UnormSrgb),
+            // Sampled only: sRGB formats cannot be storage-bound.
+            usage: Some(wgpu::TextureUsages::TEXTURE_BINDING),
+            ..Default::default()
         });
-        let view = texture.create_view(&Default::default());
         let id = state.renderer.write().register_native_texture(
             &state.device,
             &view,
@@ -56,19 +55,6 @@ impl DisplayTexture {
         [self.texture.width(), self.texture.height()]
     }
 
-    fn upload(&self, state: &egui_wgpu::RenderState, image: &RgbaImage) {
-        state.queue.write_texture(
-            self.texture.as_image_copy(),
-            image.as_raw(),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * image.width()),
-                rows_per_image: Some(image.height()),
-            },
-            self.texture.size(),
-        );
-    }
-
     fn free(self, state: &egui_wgpu::RenderState) {
         state.renderer.write().free_texture(&self.id);
     }
@@ -76,7 +62,9 @@ impl DisplayTexture {
 
 /// A scene together with its playback state.
 struct OpenScene {
-    scene: Scene,
+    scene: Arc<Scene>,
+    /// Decodes the next timestamp while this one is shown.
+    stream: DynamicStream,
     time: TimeControl,
 }
 
@@ -94,8 +82,6 @@ pub struct ViewerApp {
     /// Fraction of the window's pixels rendered (below 1 for slow adapters).
     render_scale: f32,
     display: Option<DisplayTexture>,
-    /// The last frame drawn, kept for screenshots.
-    last_frame: Option<RgbaImage>,
     /// Something changed since the last frame was drawn.
     dirty: bool,
     pose_text: String,
@@ -128,7 +114,6 @@ impl ViewerApp {
             background: [0; 3],
             render_scale: 1.0,
             display: None,
-            last_frame: None,
             dirty: true,
             pose_text: String::new(),
             status: String::new(),
@@ -155,8 +140,10 @@ impl ViewerApp {
                 if let Some(renderer) = &mut self.renderer {
                     renderer.load_scene(&scene);
                 }
+                let scene = Arc::new(scene);
                 self.opened = Some(OpenScene {
                     time: TimeControl::new(&scene.timestamps),
+                    stream: DynamicStream::new(Arc::clone(&scene)),
                     scene,
                 });
                 if self.renderer.is_some() {
@@ -165,7 +152,6 @@ impl ViewerApp {
             }
             Err(e) => {
                 self.opened = None;
-                self.last_frame = None;
                 self.error = Some(format!("Cannot open {}: {e}", path.display()));
             }
         }
@@ -261,7 +247,8 @@ impl ViewerApp {
         width: u32,
         height: u32,
     ) {
-        let (Some(renderer), Some(open), Some(state)) = (&mut self.renderer, &self.opened, state)
+        let (Some(renderer), Some(open), Some(state)) =
+            (&mut self.renderer, &mut self.opened, state)
         else {
             return;
         };
@@ -274,23 +261,30 @@ impl ViewerApp {
             return;
         }
         self.dirty = false;
-        let frame = renderer
-            .show_time(&open.scene, open.time.index)
-            .and_then(|()| renderer.render(&self.camera.to_camera(width, height), &self.options));
-        match frame {
-            Ok(image) => {
-                if size_changed {
-                    if let Some(old) = self.display.take() {
-                        old.free(state);
-                    }
-                    self.display = Some(DisplayTexture::new(state, width, height));
-                }
-                if let Some(display) = &self.display {
-                    display.upload(state, &image);
-                }
-                self.last_frame = Some(image);
-                self.error = None;
+        if size_changed {
+            if let Some(old) = self.display.take() {
+                old.free(state);
             }
+            self.display = Some(DisplayTexture::new(state, renderer, width, height));
+        }
+        let display = self.display.as_ref().expect("created above");
+        let camera = self.camera.to_camera(width, height);
+        let t = open.time.index;
+        let shown = if time_changed {
+            let shown = open
+                .stream
+                .take(t)
+                .and_then(|dynamic| renderer.show(&open.scene, t, &dynamic));
+            if open.time.playing {
+                open.stream.prefetch((t + 1) % open.time.count());
+            }
+            shown
+        } else {
+            Ok(())
+        };
+        let drawn = shown.and_then(|()| renderer.draw(&camera, &self.options, &display.texture));
+        match drawn {
+            Ok(()) => self.error = None,
             Err(e) => {
                 self.error = Some(e);
                 // Do not retry a failing frame on every repaint; a change retries it.
@@ -302,9 +296,18 @@ impl ViewerApp {
     }
 
     fn screenshot(&mut self) {
-        let (Some(frame), Some(open)) = (&self.last_frame, &self.opened) else {
+        let (Some(display), Some(open), Some(renderer)) =
+            (&self.display, &self.opened, &mut self.renderer)
+        else {
             self.status = "Nothing to save yet".into();
             return;
+        };
+        let frame = match renderer.read_back(&display.texture) {
+            Ok(frame) => frame,
+            Err(e) => {
+                self.status = e;
+                return;
+            }
         };
         let stem = Path::new(&open.scene.name)
             .file_stem()
@@ -321,7 +324,7 @@ impl ViewerApp {
             }
             n += 1;
         };
-        self.status = match save_png(frame, &path) {
+        self.status = match save_png(&frame, &path) {
             Ok(()) => format!("Saved {}", path.display()),
             Err(e) => e,
         };

@@ -4,6 +4,7 @@
 //!
 //! - [`camera`]: fly/orbit camera maths, pose strings, the support hint.
 //! - [`scene`]: opening files and streaming dynamic sets per timestamp.
+//! - [`stream`]: dynamic sets decoded ahead of playback on a worker thread.
 //! - [`time`]: play, pause, loop and step through the timestamps.
 //! - [`render`]: the frame render path shared by the window, headless use and the bench.
 //! - [`headless`]: one view to an image, without a window.
@@ -15,6 +16,7 @@ pub mod camera;
 pub mod headless;
 pub mod render;
 pub mod scene;
+pub mod stream;
 pub mod synthetic;
 pub mod time;
 

@@ -32,7 +32,13 @@ from pano4d.animate.regions import active_views, blend_weight
 from pano4d.camera import Camera
 from pano4d.config import AnimateConfig, SceneConfig
 from pano4d.resample import equirect_sampler, equirect_to_perspective, sphere_sampler
-from pano4d.sphere import Icosphere, equirect_directions, view_layout, views_seeing
+from pano4d.sphere import (
+    Icosphere,
+    equirect_directions,
+    matched_view_size,
+    view_layout,
+    views_seeing,
+)
 
 # Files a diffusers SVD folder must hold; each network folder also needs its weights.
 REQUIRED_FILES = (
@@ -309,13 +315,6 @@ def load_svd(
 
 
 # --- the whole phase ----------------------------------------------------------------------
-def view_size(width: int, fov_deg: float, multiple: int) -> int:
-    """Square view side (pixels) matching the panorama's resolution at the view centre,
-    rounded to the model's size multiple."""
-    matched = width * fov_deg / 360.0
-    return max(multiple, round(matched / multiple) * multiple)
-
-
 def view_batch(model: SVDDenoiser, frames: int, cam: Camera, budget_bytes: int) -> int:
     """How many views one UNet call may take within ``budget_bytes`` of activations."""
     pixels = (cam.width // model.scale_factor) * (cam.height // model.scale_factor)
@@ -365,7 +364,7 @@ def prepare_panorama(
     s = model.scale_factor
     if height % s or width % s:
         raise ValueError(f"panorama {width}x{height} must have sides divisible by {s}")
-    side = view_size(width, settings.fov_deg, model.size_multiple)
+    side = matched_view_size(width, settings.fov_deg, model.size_multiple)
     cameras = view_layout(settings.views, settings.fov_deg, side)
     active = active_views(cameras, moving)
     if not active:

@@ -99,6 +99,7 @@ fn render_forward<'py>(
     let settings = RenderSettings {
         background,
         antialiased,
+        ..Default::default()
     };
     let (pixels, isects) = py
         .detach(|| with_renderer(|r| r.forward(&input, &camera, &settings)))
@@ -132,6 +133,7 @@ fn render_backward<'py>(
     let settings = RenderSettings {
         background,
         antialiased,
+        ..Default::default()
     };
     let grads = py
         .detach(|| with_renderer(|r| r.backward(&input, &camera, &settings, v)))

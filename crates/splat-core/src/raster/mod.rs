@@ -10,11 +10,15 @@
 pub mod context;
 mod kernels;
 pub mod renderer;
+mod resident;
 #[cfg(test)]
 mod tests;
 
 pub use context::{AdapterSummary, GpuContext};
-pub use renderer::{Gradients, RenderSettings, Renderer, SceneInput};
+pub use renderer::{
+    target_texture, Gradients, RenderSettings, Renderer, SceneInput, TARGET_FORMAT,
+};
+pub use resident::ResidentScene;
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.
 #[derive(Debug, thiserror::Error)]
@@ -25,6 +29,15 @@ pub enum RasterError {
     Device(String),
     #[error("invalid render input: {0}")]
     InvalidInput(String),
+    #[error(
+        "{gaussians} Gaussians take {bytes} bytes, more than this device's storage binding \
+         limit ({allowed} bytes)"
+    )]
+    TooLarge {
+        gaussians: usize,
+        bytes: u64,
+        allowed: u64,
+    },
     #[error("GPU error: {0}")]
     Gpu(String),
 }

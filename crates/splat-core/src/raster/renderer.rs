@@ -5,9 +5,10 @@ use super::kernels::{
     bind_group, compile, dispatch_linear, div_ceil, scratch_len, SortKernels, COMMON_WGSL,
     GAUSSIAN_WGSL,
 };
+use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
 use crate::camera::Camera;
-use crate::gaussians::sh_coeffs;
+use crate::gaussians::{sh_coeffs, GaussianSet};
 
 const PROJECT_WGSL: &str = include_str!("../../../../shaders/project.wgsl");
 const TILES_WGSL: &str = include_str!("../../../../shaders/tiles.wgsl");
@@ -15,6 +16,7 @@ const RANGES_WGSL: &str = include_str!("../../../../shaders/ranges.wgsl");
 const RASTERIZE_WGSL: &str = include_str!("../../../../shaders/rasterize.wgsl");
 const RASTERIZE_BACKWARD_WGSL: &str = include_str!("../../../../shaders/rasterize_backward.wgsl");
 const PROJECT_BACKWARD_WGSL: &str = include_str!("../../../../shaders/project_backward.wgsl");
+const PRESENT_WGSL: &str = include_str!("../../../../shaders/present.wgsl");
 
 pub const TILE_SIZE: u32 = 16;
 /// Floats per output pixel: r, g, b, alpha, accumulated depth.
@@ -38,6 +40,19 @@ pub struct SceneInput<'a> {
     pub sh: &'a [f32],
 }
 
+impl<'a> From<&'a GaussianSet> for SceneInput<'a> {
+    /// Borrows the set's arrays as they are (no copy).
+    fn from(set: &'a GaussianSet) -> Self {
+        Self {
+            means: set.means.as_flattened(),
+            log_scales: set.log_scales.as_flattened(),
+            quats: set.quats.as_flattened(),
+            opacity_logits: &set.opacity_logits,
+            sh: &set.sh,
+        }
+    }
+}
+
 impl SceneInput<'_> {
     pub fn len(&self) -> usize {
         self.opacity_logits.len()
@@ -48,7 +63,7 @@ impl SceneInput<'_> {
     }
 
     /// Checks the array lengths and returns (n, SH coefficients per channel).
-    fn validate(&self) -> Result<(u32, u32), RasterError> {
+    pub(crate) fn validate(&self) -> Result<(u32, u32), RasterError> {
         let n = self.len();
         let bad = |what: &str, got: usize, want: usize| {
             RasterError::InvalidInput(format!(
@@ -79,16 +94,21 @@ impl SceneInput<'_> {
         Ok((n32, k as u32))
     }
 
-    /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
-    fn packed(&self) -> Vec<f32> {
-        let mut out = Vec::with_capacity(11 * self.len() + self.sh.len());
-        for part in [
+    /// The parameter arrays in the order of the shaders' SoA sections.
+    pub(crate) fn sections(&self) -> [&[f32]; 5] {
+        [
             self.means,
             self.log_scales,
             self.quats,
             self.opacity_logits,
             self.sh,
-        ] {
+        ]
+    }
+
+    /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
+    fn packed(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(11 * self.len() + self.sh.len());
+        for part in self.sections() {
             out.extend_from_slice(part);
         }
         out
@@ -101,6 +121,44 @@ pub struct RenderSettings {
     pub background: [f32; 3],
     /// Multiply opacity by sqrt(det Σ2D / det(Σ2D + 0.3 I)) (Mip-Splatting's 2D filter).
     pub antialiased: bool,
+    /// Multiplies every Gaussian's scale as it is drawn (the viewer's slider; 1 = as stored).
+    pub splat_scale: f32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            background: [0.0; 3],
+            antialiased: false,
+            splat_scale: 1.0,
+        }
+    }
+}
+
+/// The texture format [`Renderer::draw`] writes: the forward's colours (display values,
+/// clamped to 0..1) as 8-bit RGBA. Targets may also be viewed as its sRGB twin, so that
+/// samplers decode them the way egui decodes its own images.
+pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// A texture [`Renderer::draw`] can write, egui can sample (through an
+/// `Rgba8UnormSrgb` view) and [`Renderer::read_rgba8`] can copy out.
+pub fn target_texture(device: &wgpu::Device, width: u32, height: u32) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("render target"),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: TARGET_FORMAT,
+        usage: wgpu::TextureUsages::STORAGE_BINDING
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[wgpu::TextureFormat::Rgba8UnormSrgb],
+    })
 }
 
 /// Gradients in the layout of [`SceneInput`].
@@ -129,9 +187,12 @@ struct RenderParams {
     sh_coeffs: u32,
     antialiased: u32,
     num_intersections: u32,
+    gaussian_stride: u32,
+    log_scale_offset: f32,
+    pad: [u32; 2],
 }
 
-fn render_params(camera: &Camera, settings: &RenderSettings, n: u32, k: u32) -> RenderParams {
+fn render_params(camera: &Camera, settings: &RenderSettings, scene: &SceneBuffer) -> RenderParams {
     let r = camera.rotation;
     let t = camera.translation;
     let row = |i: usize| {
@@ -162,11 +223,29 @@ fn render_params(camera: &Camera, settings: &RenderSettings, n: u32, k: u32) -> 
         height: camera.height,
         tiles_x: div_ceil(camera.width, TILE_SIZE),
         tiles_y: div_ceil(camera.height, TILE_SIZE),
-        num_gaussians: n,
-        sh_coeffs: k,
+        num_gaussians: scene.len,
+        sh_coeffs: scene.sh_coeffs,
         antialiased: settings.antialiased as u32,
         num_intersections: 0,
+        gaussian_stride: scene.stride,
+        log_scale_offset: settings.splat_scale.ln(),
+        pad: [0; 2],
     }
+}
+
+fn validate_settings(settings: &RenderSettings) -> Result<(), RasterError> {
+    if !settings.background.iter().all(|v| v.is_finite()) {
+        return Err(RasterError::InvalidInput(
+            "background must be finite".into(),
+        ));
+    }
+    let scale = settings.splat_scale;
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(RasterError::InvalidInput(format!(
+            "splat scale must be finite and > 0, got {scale}"
+        )));
+    }
+    Ok(())
 }
 
 fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
@@ -259,6 +338,7 @@ struct Buffers {
 
 /// The geometry of one frame, left in the buffers by [`Renderer::encode_frame`].
 struct Frame {
+    scene: SceneBuffer,
     params: RenderParams,
     num_intersections: u32,
     /// Which ping-pong buffer holds the depth-sorted Gaussian indices.
@@ -279,6 +359,7 @@ pub struct Renderer {
     rasterize: wgpu::ComputePipeline,
     rasterize_backward: wgpu::ComputePipeline,
     project_backward: wgpu::ComputePipeline,
+    present: wgpu::ComputePipeline,
     buffers: Buffers,
 }
 
@@ -320,6 +401,7 @@ impl Renderer {
                 "project_backward",
                 &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_BACKWARD_WGSL],
             ),
+            present: one("present", &[COMMON_WGSL, PRESENT_WGSL]),
             buffers: Buffers {
                 params: device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("render params"),
@@ -370,39 +452,45 @@ impl Renderer {
         self.read_mapped(&staging, bytes)
     }
 
+    /// Copies `scene` into the renderer's own Gaussian buffer (training and one-off
+    /// renders; the viewer keeps a [`ResidentScene`] instead).
+    fn upload(&mut self, scene: &SceneInput<'_>) -> Result<SceneBuffer, RasterError> {
+        let (n, k) = scene.validate()?;
+        let device = &self.ctx.device;
+        let bytes = ResidentScene::bytes_for(n as usize, k as usize);
+        check_scene_fits(device, n as usize, k as usize)?;
+        let buffer = self.buffers.gaussians.get(device, bytes).clone();
+        self.ctx
+            .queue
+            .write_buffer(&buffer, 0, bytemuck::cast_slice(&scene.packed()));
+        Ok(SceneBuffer {
+            buffer,
+            len: n,
+            stride: n,
+            sh_coeffs: k,
+        })
+    }
+
     /// Runs every stage up to and including the forward blending; the results stay in
-    /// the buffers for the read-back or the backward pass.
+    /// the buffers for the read-back, the backward pass or [`Self::draw`]'s conversion.
     fn encode_frame(
         &mut self,
-        scene: &SceneInput<'_>,
+        scene: SceneBuffer,
         camera: &Camera,
         settings: &RenderSettings,
     ) -> Result<Frame, RasterError> {
         validate_camera(camera)?;
-        if !settings.background.iter().all(|v| v.is_finite()) {
-            return Err(RasterError::InvalidInput(
-                "background must be finite".into(),
-            ));
-        }
-        let (n, k) = scene.validate()?;
-        let mut params = render_params(camera, settings, n, k);
+        validate_settings(settings)?;
+        let mut params = render_params(camera, settings, &scene);
+        let n = scene.len;
         let device = self.ctx.device.clone();
-        let scene_bytes = 4 * (11 * n as u64 + 3 * (k * n) as u64);
-        let binding_limit = device.limits().max_storage_buffer_binding_size;
-        if scene_bytes > binding_limit {
-            return Err(RasterError::InvalidInput(format!(
-                "{n} Gaussians with {k} SH coefficients take {scene_bytes} bytes, more than this \
-                 device's storage binding limit ({binding_limit} bytes)"
-            )));
-        }
         let queue = self.ctx.queue.clone();
         let b = &mut self.buffers;
         let num_tiles = params.tiles_x * params.tiles_y;
         let pixels = camera.width as u64 * camera.height as u64;
 
         // Stage 1: projection, depth sort, tile-count scan.
-        let gaussians = b.gaussians.get(&device, scene_bytes).clone();
-        queue.write_buffer(&gaussians, 0, bytemuck::cast_slice(&scene.packed()));
+        let gaussians = scene.buffer.clone();
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
         let n64 = n as u64;
         let (counts_len, sums_len) = scratch_len(n + 1);
@@ -574,6 +662,7 @@ impl Renderer {
         queue.submit([encoder.finish()]);
         pop_error(scope)?;
         Ok(Frame {
+            scene,
             params,
             num_intersections: m,
             depth_sorted,
@@ -610,6 +699,7 @@ impl Renderer {
         camera: &Camera,
         settings: &RenderSettings,
     ) -> Result<(Vec<f32>, u32), RasterError> {
+        let scene = self.upload(scene)?;
         let frame = self.encode_frame(scene, camera, settings)?;
         let bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
         let src = self
@@ -620,6 +710,101 @@ impl Renderer {
             .expect("allocated by encode_frame");
         let data = self.read_back(&src, bytes)?;
         Ok((bytemuck::pod_collect_to_vec(&data), frame.num_intersections))
+    }
+
+    /// Draws the resident `scene` into `target` (a [`target_texture`] of the camera's size)
+    /// without a trip through the host; returns the number of tile intersections.
+    pub fn draw(
+        &mut self,
+        scene: &ResidentScene,
+        camera: &Camera,
+        settings: &RenderSettings,
+        target: &wgpu::Texture,
+    ) -> Result<u32, RasterError> {
+        let size = target.size();
+        if target.format() != TARGET_FORMAT
+            || !target
+                .usage()
+                .contains(wgpu::TextureUsages::STORAGE_BINDING)
+            || [size.width, size.height] != [camera.width, camera.height]
+        {
+            return Err(RasterError::InvalidInput(format!(
+                "the target must be a {}x{} texture from target_texture(), got {}x{} {:?}",
+                camera.width,
+                camera.height,
+                size.width,
+                size.height,
+                target.format()
+            )));
+        }
+        let frame = self.encode_frame(scene.as_buffer(), camera, settings)?;
+        let device = &self.ctx.device;
+        let pixels = self
+            .buffers
+            .pixels
+            .buffer
+            .clone()
+            .expect("allocated by encode_frame");
+        let view = target.create_view(&Default::default());
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("present"),
+            layout: &self.present.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.buffers.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: pixels.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+            ],
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.present);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        self.ctx.queue.submit([encoder.finish()]);
+        pop_error(scope)?;
+        Ok(frame.num_intersections)
+    }
+
+    /// The pixels of a [`target_texture`] as tightly packed RGBA8 rows.
+    pub fn read_rgba8(&mut self, texture: &wgpu::Texture) -> Result<Vec<u8>, RasterError> {
+        let (width, height) = (texture.width(), texture.height());
+        let row = 4 * width;
+        let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let bytes = padded_row as u64 * height as u64;
+        let device = &self.ctx.device;
+        let staging = self.buffers.readback.get(device, bytes).clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &staging,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded_row),
+                    rows_per_image: Some(height),
+                },
+            },
+            texture.size(),
+        );
+        self.ctx.queue.submit([encoder.finish()]);
+        let padded = self.read_mapped(&staging, bytes)?;
+        Ok(padded
+            .chunks_exact(padded_row as usize)
+            .flat_map(|r| &r[..row as usize])
+            .copied()
+            .collect())
     }
 
     /// Gradients of a loss w.r.t. the scene, given its gradient w.r.t. the forward
@@ -640,6 +825,7 @@ impl Renderer {
                 PIXEL_CHANNELS * pixels
             )));
         }
+        let scene = self.upload(scene)?;
         let frame = self.encode_frame(scene, camera, settings)?;
         let device = self.ctx.device.clone();
         let queue = self.ctx.queue.clone();
@@ -686,7 +872,7 @@ impl Renderer {
                     &self.project_backward,
                     &[
                         (0, &b.params),
-                        (1, &get(&b.gaussians)),
+                        (1, &frame.scene.buffer),
                         (2, &get(&b.tile_counts)),
                         (3, &depth_vals),
                         (4, &get(&b.offsets)),

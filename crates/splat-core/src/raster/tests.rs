@@ -2,8 +2,11 @@
 //! renders of single Gaussians whose footprint is known in closed form.
 
 use super::kernels::{scratch_len, SortKernels};
-use super::{GpuContext, RenderSettings, Renderer, SceneInput};
+use super::{
+    target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene, SceneInput,
+};
 use crate::camera::Camera;
+use crate::gaussians::GaussianSet;
 use glam::DVec3;
 use wgpu::util::DeviceExt;
 
@@ -131,34 +134,50 @@ fn scan_matches_a_cpu_prefix_sum() {
     }
 }
 
-struct OneGaussian {
-    means: Vec<f32>,
-    log_scales: Vec<f32>,
-    quats: Vec<f32>,
-    opacity_logits: Vec<f32>,
-    sh: Vec<f32>,
+/// One isotropic Gaussian with SH DC (1, 0, -1).
+fn one_gaussian(mean: [f32; 3], log_scale: f32, opacity_logit: f32) -> GaussianSet {
+    GaussianSet {
+        sh_degree: 0,
+        means: vec![mean],
+        log_scales: vec![[log_scale; 3]],
+        quats: vec![[1.0, 0.0, 0.0, 0.0]],
+        opacity_logits: vec![opacity_logit],
+        sh: vec![1.0, 0.0, -1.0],
+    }
 }
 
-impl OneGaussian {
-    fn new(mean: [f32; 3], log_scale: f32, opacity_logit: f32) -> Self {
-        Self {
-            means: mean.to_vec(),
-            log_scales: vec![log_scale; 3],
-            quats: vec![1.0, 0.0, 0.0, 0.0],
-            opacity_logits: vec![opacity_logit],
-            sh: vec![1.0, 0.0, -1.0],
+/// `n` random SH-degree-1 Gaussians in front of [`camera`].
+fn random_set(n: usize, seed: u64) -> GaussianSet {
+    let mut state = seed.max(1);
+    let mut uniform =
+        |lo: f32, hi: f32| lo + (hi - lo) * random_u32(&mut state) as f32 / u32::MAX as f32;
+    let mut set = GaussianSet::with_capacity(1, n);
+    for _ in 0..n {
+        set.means
+            .push([uniform(3.0, 6.0), uniform(-2.0, 2.0), uniform(-1.5, 1.5)]);
+        set.log_scales.push([
+            uniform(-3.5, -1.5),
+            uniform(-3.5, -1.5),
+            uniform(-3.5, -1.5),
+        ]);
+        set.quats.push([
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+        ]);
+        set.opacity_logits.push(uniform(-2.0, 3.0));
+        for _ in 0..12 {
+            set.sh.push(uniform(-1.0, 1.0));
         }
     }
+    set
+}
 
-    fn input(&self) -> SceneInput<'_> {
-        SceneInput {
-            means: &self.means,
-            log_scales: &self.log_scales,
-            quats: &self.quats,
-            opacity_logits: &self.opacity_logits,
-            sh: &self.sh,
-        }
-    }
+fn concat(a: &GaussianSet, b: &GaussianSet) -> GaussianSet {
+    let mut out = a.clone();
+    out.extend_from(b);
+    out
 }
 
 fn camera(width: u32, height: u32) -> Camera {
@@ -168,14 +187,11 @@ fn camera(width: u32, height: u32) -> Camera {
 #[test]
 fn centred_gaussian_peaks_at_the_image_centre() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let g = OneGaussian::new([5.0, 0.0, 0.0], -1.0, 2.0);
-    let settings = RenderSettings {
-        background: [0.0; 3],
-        antialiased: false,
-    };
+    let g = one_gaussian([5.0, 0.0, 0.0], -1.0, 2.0);
+    let settings = RenderSettings::default();
     let (w, h) = (40u32, 30u32);
     let (pixels, isects) = renderer
-        .forward(&g.input(), &camera(w, h), &settings)
+        .forward(&SceneInput::from(&g), &camera(w, h), &settings)
         .expect("render");
     assert!(isects >= 1);
     let alpha = |x: u32, y: u32| pixels[((y * w + x) as usize) * 5 + 3];
@@ -204,15 +220,16 @@ fn gaussians_behind_the_camera_or_invalid_are_culled() {
     let settings = RenderSettings {
         background: [0.25, 0.5, 0.75],
         antialiased: true,
+        ..Default::default()
     };
     for g in [
-        OneGaussian::new([-5.0, 0.0, 0.0], 0.0, 5.0),
-        OneGaussian::new([0.005, 0.0, 0.0], 0.0, 5.0),
-        OneGaussian::new([f32::NAN, 0.0, 0.0], 0.0, 5.0),
-        OneGaussian::new([5.0, 0.0, 0.0], f32::INFINITY, 5.0),
+        one_gaussian([-5.0, 0.0, 0.0], 0.0, 5.0),
+        one_gaussian([0.005, 0.0, 0.0], 0.0, 5.0),
+        one_gaussian([f32::NAN, 0.0, 0.0], 0.0, 5.0),
+        one_gaussian([5.0, 0.0, 0.0], f32::INFINITY, 5.0),
     ] {
         let (pixels, isects) = renderer
-            .forward(&g.input(), &camera(17, 13), &settings)
+            .forward(&SceneInput::from(&g), &camera(17, 13), &settings)
             .expect("render");
         assert_eq!(isects, 0);
         for px in pixels.chunks(5) {
@@ -224,17 +241,156 @@ fn gaussians_behind_the_camera_or_invalid_are_culled() {
 #[test]
 fn bad_input_is_an_error_not_a_panic() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let mut g = OneGaussian::new([5.0, 0.0, 0.0], 0.0, 0.0);
+    let mut g = one_gaussian([5.0, 0.0, 0.0], 0.0, 0.0);
     g.sh.push(0.0);
+    let settings = RenderSettings::default();
+    assert!(renderer
+        .forward(&SceneInput::from(&g), &camera(8, 8), &settings)
+        .is_err());
+    let g = one_gaussian([5.0, 0.0, 0.0], 0.0, 0.0);
+    assert!(renderer
+        .backward(&SceneInput::from(&g), &camera(8, 8), &settings, &[0.0; 3])
+        .is_err());
+}
+
+/// The forward's colours quantised as `Renderer::draw` stores them.
+fn quantised(pixels: &[f32]) -> Vec<u8> {
+    pixels
+        .chunks_exact(5)
+        .flat_map(|p| {
+            let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+            [q(p[0]), q(p[1]), q(p[2]), 255]
+        })
+        .collect()
+}
+
+fn assert_close_rgba(got: &[u8], want: &[u8], what: &str) {
+    assert_eq!(got.len(), want.len());
+    let worst = got
+        .iter()
+        .zip(want)
+        .map(|(a, b)| a.abs_diff(*b))
+        .max()
+        .unwrap_or(0);
+    // Rounding at exactly half a level may differ between the GPU's and the CPU's.
+    assert!(worst <= 1, "{what}: largest difference {worst} levels");
+}
+
+#[test]
+fn resident_scene_draws_what_the_forward_renders() {
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let device = renderer.context().device.clone();
+    let queue = renderer.context().queue.clone();
+    let (w, h) = (45u32, 33u32);
+    let cam = camera(w, h);
+    let target = target_texture(&device, w, h);
+    let static_set = random_set(300, 1);
+    let mut resident = ResidentScene::new(&device, 500, 4).expect("resident scene");
+    resident
+        .write(&queue, 0, &SceneInput::from(&static_set))
+        .expect("static set");
     let settings = RenderSettings {
-        background: [0.0; 3],
-        antialiased: false,
+        background: [0.1, 0.2, 0.3],
+        ..Default::default()
     };
-    assert!(renderer
-        .forward(&g.input(), &camera(8, 8), &settings)
+    // Dynamic sets of different sizes replace each other after the static set.
+    for (count, seed) in [(150, 2), (40, 3), (200, 4)] {
+        let dynamic = random_set(count, seed);
+        resident
+            .write(&queue, static_set.len(), &SceneInput::from(&dynamic))
+            .expect("dynamic set");
+        assert_eq!(resident.len(), 300 + count);
+        renderer
+            .draw(&resident, &cam, &settings, &target)
+            .expect("draw");
+        let got = renderer.read_rgba8(&target).expect("read back");
+        assert!(
+            got.chunks(4).any(|p| p != [26, 51, 77, 255]),
+            "nothing drawn"
+        );
+        let whole = concat(&static_set, &dynamic);
+        let (pixels, _) = renderer
+            .forward(&SceneInput::from(&whole), &cam, &settings)
+            .expect("forward");
+        assert_close_rgba(&got, &quantised(&pixels), &format!("{count} dynamic"));
+    }
+    // The splat scale is the same as scaling the stored Gaussians.
+    let scaled = RenderSettings {
+        splat_scale: 1.7,
+        ..settings
+    };
+    renderer
+        .draw(&resident, &cam, &scaled, &target)
+        .expect("draw");
+    let got = renderer.read_rgba8(&target).expect("read back");
+    let mut whole = concat(&static_set, &random_set(200, 4));
+    for s in whole.log_scales.iter_mut().flatten() {
+        *s += 1.7f32.ln();
+    }
+    let (pixels, _) = renderer
+        .forward(&SceneInput::from(&whole), &cam, &settings)
+        .expect("forward");
+    assert_close_rgba(&got, &quantised(&pixels), "splat scale 1.7");
+}
+
+#[test]
+fn resident_scene_refuses_what_does_not_fit() {
+    let renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let device = &renderer.context().device;
+    let queue = &renderer.context().queue;
+    let mut resident = ResidentScene::new(device, 10, 4).expect("resident scene");
+    let eight = random_set(8, 5);
+    assert!(resident.write(queue, 0, &SceneInput::from(&eight)).is_ok());
+    // Past the capacity, or leaving a gap after what is written.
+    assert!(resident.write(queue, 3, &SceneInput::from(&eight)).is_err());
+    assert!(resident
+        .write(queue, 9, &SceneInput::from(&random_set(1, 6)))
         .is_err());
-    let g = OneGaussian::new([5.0, 0.0, 0.0], 0.0, 0.0);
-    assert!(renderer
-        .backward(&g.input(), &camera(8, 8), &settings, &[0.0; 3])
+    // Another SH degree.
+    let dc_only = one_gaussian([5.0, 0.0, 0.0], 0.0, 0.0);
+    assert!(resident
+        .write(queue, 8, &SceneInput::from(&dc_only))
         .is_err());
+    assert_eq!(resident.len(), 8);
+    assert!(ResidentScene::new(device, 10, 5).is_err());
+    let limits = device.limits();
+    let allowed = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size);
+    let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
+    if over < (u32::MAX / 64) as usize {
+        assert!(matches!(
+            ResidentScene::new(device, over, 16),
+            Err(RasterError::TooLarge { .. })
+        ));
+    }
+}
+
+#[test]
+fn draw_checks_its_target() {
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let device = renderer.context().device.clone();
+    let resident = ResidentScene::new(&device, 4, 1).expect("resident scene");
+    let wrong_size = target_texture(&device, 8, 9);
+    let settings = RenderSettings::default();
+    assert!(renderer
+        .draw(&resident, &camera(8, 8), &settings, &wrong_size)
+        .is_err());
+    let nan_scale = RenderSettings {
+        splat_scale: f32::NAN,
+        ..settings
+    };
+    let target = target_texture(&device, 8, 8);
+    assert!(renderer
+        .draw(&resident, &camera(8, 8), &nan_scale, &target)
+        .is_err());
+    // An empty scene draws the background.
+    renderer
+        .draw(&resident, &camera(8, 8), &settings, &target)
+        .expect("empty draw");
+    assert!(renderer
+        .read_rgba8(&target)
+        .expect("read back")
+        .chunks(4)
+        .all(|p| p == [0, 0, 0, 255]));
 }
