@@ -1,9 +1,11 @@
 // Backward of rasterize.wgsl: per tile, every pixel walks its contributors back to front
 // (T recovered by dividing out 1 - alpha, colour/depth behind accumulated as in 3DGS) and
 // produces gradients w.r.t. each Gaussian's 2D mean, conic, colour, opacity and depth.
-// They are summed over the tile's pixels in workgroup memory (float adds by a
-// compare-exchange loop on the u32 bits) and written, without global atomics, to the
-// intersection's own slot; project_backward.wgsl sums a Gaussian's slots.
+// They are summed over the tile's pixels in workgroup memory and written, without global
+// atomics, to the intersection's own slot; project_backward.wgsl sums a Gaussian's slots.
+// How the pixels' values are summed (`sum_grads`) is prepended by the host: float adds by a
+// compare-exchange loop on the u32 bits (grad_sum_atomic.wgsl), or first across the
+// subgroup where the device has subgroup operations (grad_sum_subgroup.wgsl).
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> projected: array<Projected>;
@@ -26,6 +28,8 @@ var<workgroup> batch_grads: array<atomic<u32>, 1280>;
 var<workgroup> max_end: atomic<u32>;
 var<workgroup> max_end_snapshot: u32;
 
+// Float add on workgroup memory by compare-exchange on the u32 bits (WGSL has no portable
+// float atomics).
 fn add_grad(idx: u32, value: f32) {
     var old = atomicLoad(&batch_grads[idx]);
     loop {
@@ -99,53 +103,53 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
             atomicStore(&batch_grads[k], 0u);
         }
         workgroupBarrier();
+        // k is the same for the whole workgroup: every invocation reaches `sum_grads`
+        // (those the Gaussian does not touch with zeros), as subgroup sums require.
         for (var kk = 0u; kk < count; kk++) {
             let k = count - 1u - kk;
-            if batch_start + k >= contrib_end {
-                continue;
-            }
             let xyoz = batch_xy_opacity_z[k];
             let conic = batch_conic[k].xyz;
             let d = xyoz.xy - centre;
             let power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) - conic.y * d.x * d.y;
-            if power > 0.0 || power < POWER_MIN {
-                continue;
-            }
-            let g = exp(power);
+            let g = exp(min(power, 0.0));
             let raw_alpha = xyoz.z * g;
             let alpha = min(ALPHA_MAX, raw_alpha);
-            if alpha < ALPHA_MIN {
-                continue;
+            let contributes = batch_start + k < contrib_end && power <= 0.0
+                && power >= POWER_MIN && alpha >= ALPHA_MIN;
+            var grads: array<f32, 10>;
+            if contributes {
+                t = t / (1.0 - alpha);
+                behind_rgb = last_alpha * last_rgb + (1.0 - last_alpha) * behind_rgb;
+                behind_depth = last_alpha * last_depth + (1.0 - last_alpha) * behind_depth;
+                let rgb = batch_rgb[k].rgb;
+                let weight = alpha * t;
+                let v_alpha = t * (dot(rgb - behind_rgb, v_rgb) + (xyoz.w - behind_depth) * v_depth)
+                    - t_final / (1.0 - alpha) * v_t_final;
+                // The min() at 0.999 passes no gradient when it clamps.
+                var v_g = 0.0;
+                var v_opacity = 0.0;
+                if raw_alpha <= ALPHA_MAX {
+                    v_g = xyoz.z * v_alpha;
+                    v_opacity = g * v_alpha;
+                }
+                let v_power = g * v_g;
+                grads = array<f32, 10>(
+                    -v_power * (conic.x * d.x + conic.y * d.y),
+                    -v_power * (conic.y * d.x + conic.z * d.y),
+                    -0.5 * v_power * d.x * d.x,
+                    -v_power * d.x * d.y,
+                    -0.5 * v_power * d.y * d.y,
+                    weight * v_rgb.r,
+                    weight * v_rgb.g,
+                    weight * v_rgb.b,
+                    v_opacity,
+                    weight * v_depth,
+                );
+                last_alpha = alpha;
+                last_rgb = rgb;
+                last_depth = xyoz.w;
             }
-            t = t / (1.0 - alpha);
-            behind_rgb = last_alpha * last_rgb + (1.0 - last_alpha) * behind_rgb;
-            behind_depth = last_alpha * last_depth + (1.0 - last_alpha) * behind_depth;
-            let rgb = batch_rgb[k].rgb;
-            let weight = alpha * t;
-            let v_alpha = t * (dot(rgb - behind_rgb, v_rgb) + (xyoz.w - behind_depth) * v_depth)
-                - t_final / (1.0 - alpha) * v_t_final;
-            // The min() at 0.999 passes no gradient when it clamps.
-            var v_g = 0.0;
-            var v_opacity = 0.0;
-            if raw_alpha <= ALPHA_MAX {
-                v_g = xyoz.z * v_alpha;
-                v_opacity = g * v_alpha;
-            }
-            let v_power = g * v_g;
-            let base = k * GRAD_STRIDE;
-            add_grad(base, -v_power * (conic.x * d.x + conic.y * d.y));
-            add_grad(base + 1u, -v_power * (conic.y * d.x + conic.z * d.y));
-            add_grad(base + 2u, -0.5 * v_power * d.x * d.x);
-            add_grad(base + 3u, -v_power * d.x * d.y);
-            add_grad(base + 4u, -0.5 * v_power * d.y * d.y);
-            add_grad(base + 5u, weight * v_rgb.r);
-            add_grad(base + 6u, weight * v_rgb.g);
-            add_grad(base + 7u, weight * v_rgb.b);
-            add_grad(base + 8u, v_opacity);
-            add_grad(base + 9u, weight * v_depth);
-            last_alpha = alpha;
-            last_rgb = rgb;
-            last_depth = xyoz.w;
+            sum_grads(k * GRAD_STRIDE, contributes, grads);
         }
         workgroupBarrier();
         if lid < count {

@@ -6,6 +6,8 @@
 use super::RasterError;
 
 pub const ADAPTER_ENV: &str = "PANO4D_ADAPTER";
+/// Set to 0 to leave subgroup operations off (see [`GpuContext::new`]).
+pub const SUBGROUPS_ENV: &str = "PANO4D_SUBGROUPS";
 
 const NO_DRIVER_HINT: &str = "no Vulkan/Metal/DX12 adapter found; on Debian/Ubuntu install a \
      Vulkan driver with `apt-get install mesa-vulkan-drivers libvulkan1` (lavapipe runs on the \
@@ -90,8 +92,20 @@ fn choose(
 }
 
 impl GpuContext {
-    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` (see the module docs).
+    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` (see the module docs),
+    /// with subgroup operations where the adapter has them unless `PANO4D_SUBGROUPS=0`
+    /// (to compare, or to step around a driver that gets them wrong).
     pub fn new() -> Result<Self, RasterError> {
+        Self::create(std::env::var(SUBGROUPS_ENV).map_or(true, |v| v.trim() != "0"))
+    }
+
+    /// [`Self::new`] without subgroup operations, as on adapters that lack them (tests
+    /// compare both paths on one machine).
+    pub fn without_subgroups() -> Result<Self, RasterError> {
+        Self::create(false)
+    }
+
+    fn create(subgroups: bool) -> Result<Self, RasterError> {
         let preference = std::env::var(ADAPTER_ENV).ok();
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::PRIMARY;
@@ -102,7 +116,11 @@ impl GpuContext {
         // The adapter's own limits: large scenes need storage buffers beyond the defaults.
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("pano4d rasteriser"),
-            required_features: wgpu::Features::empty(),
+            required_features: if subgroups {
+                adapter.features() & wgpu::Features::SUBGROUP
+            } else {
+                wgpu::Features::empty()
+            },
             required_limits: adapter.limits(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,

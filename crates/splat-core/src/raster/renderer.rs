@@ -17,6 +17,8 @@ const RASTERIZE_WGSL: &str = include_str!("../../../../shaders/rasterize.wgsl");
 const RASTERIZE_BACKWARD_WGSL: &str = include_str!("../../../../shaders/rasterize_backward.wgsl");
 const PROJECT_BACKWARD_WGSL: &str = include_str!("../../../../shaders/project_backward.wgsl");
 const PRESENT_WGSL: &str = include_str!("../../../../shaders/present.wgsl");
+const GRAD_SUM_ATOMIC_WGSL: &str = include_str!("../../../../shaders/grad_sum_atomic.wgsl");
+const GRAD_SUM_SUBGROUP_WGSL: &str = include_str!("../../../../shaders/grad_sum_subgroup.wgsl");
 
 pub const TILE_SIZE: u32 = 16;
 /// Floats per output pixel: r, g, b, alpha, accumulated depth.
@@ -384,6 +386,12 @@ impl Renderer {
         );
         let emit = tiles.remove(1);
         let gather_counts = tiles.remove(0);
+        // Subgroup sums cut the backward's contention where the device has them.
+        let grad_sum = if device.features().contains(wgpu::Features::SUBGROUP) {
+            GRAD_SUM_SUBGROUP_WGSL
+        } else {
+            GRAD_SUM_ATOMIC_WGSL
+        };
         let copy = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         let pair = |label| [GrowBuffer::new(label, copy), GrowBuffer::new(label, copy)];
         let renderer = Self {
@@ -395,7 +403,7 @@ impl Renderer {
             rasterize: one("rasterize", &[COMMON_WGSL, RASTERIZE_WGSL]),
             rasterize_backward: one(
                 "rasterize_backward",
-                &[COMMON_WGSL, RASTERIZE_BACKWARD_WGSL],
+                &[COMMON_WGSL, grad_sum, RASTERIZE_BACKWARD_WGSL],
             ),
             project_backward: one(
                 "project_backward",

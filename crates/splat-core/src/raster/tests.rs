@@ -394,3 +394,48 @@ fn draw_checks_its_target() {
         .chunks(4)
         .all(|p| p == [0, 0, 0, 255]));
 }
+
+#[test]
+fn subgroup_and_plain_gradient_sums_agree() {
+    let plain = GpuContext::without_subgroups().expect("adapter");
+    assert!(!plain.device.features().contains(wgpu::Features::SUBGROUP));
+    let fast = GpuContext::new().expect("adapter");
+    let has_subgroups = fast.device.features().contains(wgpu::Features::SUBGROUP);
+    eprintln!("subgroup operations on this adapter: {has_subgroups}");
+    let mut plain = Renderer::new(plain).expect("renderer");
+    let mut fast = Renderer::new(fast).expect("renderer");
+    let set = random_set(400, 11);
+    let (w, h) = (40u32, 28u32);
+    let cam = camera(w, h);
+    let settings = RenderSettings {
+        background: [0.2, 0.1, 0.4],
+        ..Default::default()
+    };
+    let mut seed = 3u64;
+    let v_pixels: Vec<f32> = (0..5 * w * h)
+        .map(|_| random_u32(&mut seed) as f32 / u32::MAX as f32 - 0.5)
+        .collect();
+    let input = SceneInput::from(&set);
+    let a = plain
+        .backward(&input, &cam, &settings, &v_pixels)
+        .expect("plain");
+    let b = fast
+        .backward(&input, &cam, &settings, &v_pixels)
+        .expect("subgroup");
+    for (name, x, y) in [
+        ("means", &a.means, &b.means),
+        ("log_scales", &a.log_scales, &b.log_scales),
+        ("quats", &a.quats, &b.quats),
+        ("opacity_logits", &a.opacity_logits, &b.opacity_logits),
+        ("sh", &a.sh, &b.sh),
+    ] {
+        let scale = x.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let worst = x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
+        assert!(scale > 1e-4, "{name}: no gradient at all");
+        // Only the order of the float additions differs.
+        assert!(
+            worst <= 1e-4 * scale,
+            "{name}: differs by {worst} (largest {scale})"
+        );
+    }
+}
