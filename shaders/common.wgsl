@@ -75,3 +75,19 @@ fn tile_rect(rp: RenderParams, xy: vec2<f32>, radius: f32) -> vec4<u32> {
     let hi = clamp(floor((xy + vec2<f32>(radius)) / f32(TILE_SIZE)) + 1.0, vec2<f32>(0.0), tiles);
     return vec4<u32>(vec2<u32>(lo), vec2<u32>(hi));
 }
+
+// The pixel one invocation of a 16x16 tile workgroup blends (rasterize and its backward).
+struct TilePixel {
+    tile: u32,
+    inside: bool,
+    // Index into per-pixel arrays (meaningful only when inside).
+    index: u32,
+    centre: vec2<f32>,
+}
+
+fn tile_pixel(rp: RenderParams, wid: vec3<u32>, lxy: vec3<u32>) -> TilePixel {
+    let px = wid.x * TILE_SIZE + lxy.x;
+    let py = wid.y * TILE_SIZE + lxy.y;
+    return TilePixel(wid.y * rp.tiles_x + wid.x, px < rp.width && py < rp.height,
+                     py * rp.width + px, vec2<f32>(f32(px) + 0.5, f32(py) + 0.5));
+}

@@ -23,12 +23,10 @@ var<workgroup> active_snapshot: u32;
 @compute @workgroup_size(16, 16)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let tile = wid.y * params.tiles_x + wid.x;
-    let px = wid.x * TILE_SIZE + lxy.x;
-    let py = wid.y * TILE_SIZE + lxy.y;
-    let inside = px < params.width && py < params.height;
-    let centre = vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-    let range = ranges[tile];
+    let pixel = tile_pixel(params, wid, lxy);
+    let inside = pixel.inside;
+    let centre = pixel.centre;
+    let range = ranges[pixel.tile];
 
     var t = 1.0;
     var colour = vec3<f32>(0.0);
@@ -87,7 +85,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     }
 
     if inside {
-        let pix = py * params.width + px;
+        let pix = pixel.index;
         let rgb = colour + t * params.background.rgb;
         out_pixels[pix * 5u] = rgb.r;
         out_pixels[pix * 5u + 1u] = rgb.g;

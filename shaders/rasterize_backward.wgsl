@@ -45,12 +45,10 @@ fn add_grad(idx: u32, value: f32) {
 @compute @workgroup_size(16, 16)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let tile = wid.y * params.tiles_x + wid.x;
-    let px = wid.x * TILE_SIZE + lxy.x;
-    let py = wid.y * TILE_SIZE + lxy.y;
-    let inside = px < params.width && py < params.height;
-    let centre = vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-    let range = ranges[tile];
+    let pixel = tile_pixel(params, wid, lxy);
+    let inside = pixel.inside;
+    let centre = pixel.centre;
+    let range = ranges[pixel.tile];
 
     var t_final = 1.0;
     var contrib_end = range.x;
@@ -58,7 +56,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     var v_alpha_out = 0.0;
     var v_depth = 0.0;
     if inside {
-        let pix = py * params.width + px;
+        let pix = pixel.index;
         let state = pixel_state[pix];
         t_final = bitcast<f32>(state.x);
         contrib_end = state.y;

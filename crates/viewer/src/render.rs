@@ -377,6 +377,24 @@ mod tests {
     }
 
     #[test]
+    fn a_scene_over_the_device_limit_gets_the_draft_advice() {
+        let renderer = FrameRenderer::headless().unwrap();
+        let limits = renderer.device().limits();
+        let allowed = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
+        if over >= (u32::MAX / 64) as usize {
+            return; // an adapter whose limit is beyond what one scene may hold anyway
+        }
+        let message = renderer.allocate(over, 3).err().expect("too large");
+        assert!(
+            message.contains("too large") && message.contains("draft preset"),
+            "{message}"
+        );
+    }
+
+    #[test]
     fn buffer_size_and_message() {
         assert_eq!(ResidentScene::bytes_for(1_000_000, 16), 4 * 1_000_000 * 59);
         let msg = too_large_message(10, 300 << 20, Some(128 << 20), "lavapipe");
