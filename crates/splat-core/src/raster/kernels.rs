@@ -75,6 +75,20 @@ pub(crate) fn bind_group(
     })
 }
 
+/// Binds `buffers` to `pipeline` and dispatches `groups` workgroups on `pass` (as
+/// [`dispatch_linear`]): one stage of the rasteriser.
+pub(crate) fn run_linear(
+    pass: &mut wgpu::ComputePass<'_>,
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[(u32, &wgpu::Buffer)],
+    groups: u32,
+) {
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group(device, pipeline, buffers), &[]);
+    dispatch_linear(pass, groups);
+}
+
 pub(crate) fn uniform(device: &wgpu::Device, data: &[u32]) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: None,
@@ -145,9 +159,7 @@ impl SortKernels {
             (&self.scan_block_sums, &sums_only[..], 1),
             (&self.add_block_sums, &all[..], num_blocks),
         ] {
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &bind_group(device, pipeline, bindings), &[]);
-            dispatch_linear(&mut pass, groups);
+            run_linear(&mut pass, device, pipeline, bindings, groups);
         }
     }
 
@@ -184,24 +196,21 @@ impl SortKernels {
                 (4, keys[dst]),
                 (5, vals[dst]),
             ];
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.count_digits);
-                let group = bind_group(device, &self.count_digits, &count_bindings);
-                pass.set_bind_group(0, &group, &[]);
-                dispatch_linear(&mut pass, num_blocks);
-            }
+            run_linear(
+                &mut encoder.begin_compute_pass(&Default::default()),
+                device,
+                &self.count_digits,
+                &count_bindings,
+                num_blocks,
+            );
             self.encode_scan(device, encoder, counts, block_sums, DIGITS * num_blocks);
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.scatter);
-                pass.set_bind_group(
-                    0,
-                    &bind_group(device, &self.scatter, &scatter_bindings),
-                    &[],
-                );
-                dispatch_linear(&mut pass, num_blocks);
-            }
+            run_linear(
+                &mut encoder.begin_compute_pass(&Default::default()),
+                device,
+                &self.scatter,
+                &scatter_bindings,
+                num_blocks,
+            );
             src = dst;
         }
         src

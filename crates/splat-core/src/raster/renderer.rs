@@ -2,8 +2,7 @@
 
 use super::context::GpuContext;
 use super::kernels::{
-    bind_group, compile, dispatch_linear, div_ceil, scratch_len, SortKernels, COMMON_WGSL,
-    GAUSSIAN_WGSL,
+    bind_group, compile, div_ceil, run_linear, scratch_len, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL,
 };
 use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
@@ -528,8 +527,8 @@ impl Renderer {
             let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
             if n > 0 {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.project);
-                let group = bind_group(
+                run_linear(
+                    &mut pass,
                     &device,
                     &self.project,
                     &[
@@ -540,9 +539,8 @@ impl Renderer {
                         (4, &dk[0]),
                         (5, &dv[0]),
                     ],
+                    groups_n,
                 );
-                pass.set_bind_group(0, &group, &[]);
-                dispatch_linear(&mut pass, groups_n);
             }
             depth_sorted = self.sort.encode_sort(
                 &device,
@@ -556,8 +554,8 @@ impl Renderer {
             );
             {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.gather_counts);
-                let group = bind_group(
+                run_linear(
+                    &mut pass,
                     &device,
                     &self.gather_counts,
                     &[
@@ -566,9 +564,8 @@ impl Renderer {
                         (3, &dv[depth_sorted]),
                         (4, &offsets),
                     ],
+                    div_ceil(n + 1, 256),
                 );
-                pass.set_bind_group(0, &group, &[]);
-                dispatch_linear(&mut pass, div_ceil(n + 1, 256));
             }
             self.sort
                 .encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
@@ -607,8 +604,8 @@ impl Renderer {
         let mut encoder = device.create_command_encoder(&Default::default());
         if m > 0 {
             let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.emit);
-            let group = bind_group(
+            run_linear(
+                &mut pass,
                 &device,
                 &self.emit,
                 &[
@@ -621,9 +618,8 @@ impl Renderer {
                     (6, &is[0]),
                     (7, &ig),
                 ],
+                groups_n,
             );
-            pass.set_bind_group(0, &group, &[]);
-            dispatch_linear(&mut pass, groups_n);
         }
         let tile_bits = u32::BITS - (num_tiles - 1).leading_zeros();
         let sorted = self.sort.encode_sort(
@@ -640,14 +636,13 @@ impl Renderer {
         {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             if m > 0 {
-                pass.set_pipeline(&self.ranges);
-                let group = bind_group(
+                run_linear(
+                    &mut pass,
                     &device,
                     &self.ranges,
                     &[(0, &b.params), (1, &ik[sorted]), (2, &ranges)],
+                    div_ceil(m, 256),
                 );
-                pass.set_bind_group(0, &group, &[]);
-                dispatch_linear(&mut pass, div_ceil(m, 256));
             }
             pass.set_pipeline(&self.rasterize);
             let group = bind_group(
@@ -874,8 +869,8 @@ impl Renderer {
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
             if n > 0 {
-                pass.set_pipeline(&self.project_backward);
-                let group = bind_group(
+                run_linear(
+                    &mut pass,
                     &device,
                     &self.project_backward,
                     &[
@@ -887,9 +882,8 @@ impl Renderer {
                         (5, &isect_grads),
                         (6, &grads),
                     ],
+                    div_ceil(n as u32, 256),
                 );
-                pass.set_bind_group(0, &group, &[]);
-                dispatch_linear(&mut pass, div_ceil(n as u32, 256));
             }
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
