@@ -302,8 +302,14 @@ impl GrowBuffer {
         let bytes = bytes.max(256).next_multiple_of(16);
         let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
         if !big_enough {
-            // Headroom so that slowly growing scenes do not reallocate every call.
-            let size = bytes + bytes / 4;
+            // Headroom so that slowly growing scenes do not reallocate every call, but none
+            // past what one binding may hold: a buffer just under the limit must still bind.
+            let limits = device.limits();
+            let limit = limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size)
+                .max(bytes);
+            let size = (bytes + bytes / 4).min(limit);
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
                 size: size.next_multiple_of(16),

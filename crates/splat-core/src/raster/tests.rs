@@ -439,3 +439,29 @@ fn subgroup_and_plain_gradient_sums_agree() {
         );
     }
 }
+
+#[test]
+fn a_scene_just_under_the_binding_limit_renders() {
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let limits = renderer.context().device.limits();
+    let allowed = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size);
+    if allowed > 256 << 20 {
+        return; // the edge is only cheap to reach on small-limit adapters such as lavapipe
+    }
+    // Within 1 % of the limit: the renderer's growable buffers must not add headroom
+    // past what one binding holds.
+    let n = (allowed as f64 * 0.99 / ResidentScene::bytes_for(1, 16) as f64) as usize;
+    let mut set = random_set(n, 21);
+    set.sh_degree = 3;
+    set.sh = vec![0.1; n * 16 * 3];
+    let (pixels, isects) = renderer
+        .forward(
+            &SceneInput::from(&set),
+            &camera(16, 16),
+            &RenderSettings::default(),
+        )
+        .expect("a scene under the limit renders");
+    assert!(isects > 0 && pixels.iter().all(|v| v.is_finite()));
+}
