@@ -97,3 +97,18 @@ def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
     assert "static" in evaluated.output
     missing = runner.invoke(app, ["eval", str(tmp_path / "nope.yaml")])
     assert missing.exit_code == 2 and "nope.yaml" in missing.output
+
+
+def test_check_caps_the_view_size_at_the_panorama_pixel(tmp_path: Path) -> None:
+    import numpy as np
+
+    from pano4d.imageio import write_image
+
+    write_image(tmp_path / "pano.png", np.full((512, 1024, 3), 0.5, dtype=np.float32))
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("panorama: pano.png\nregions:\n  - box: [0, 0, 10, 10]\npreset: max\n")
+    result = runner.invoke(app, ["check", str(scene)])
+    assert result.exit_code == 0, result.output
+    # An 80° view spans 228 pixels of a 1024-wide panorama: 1024 would only resample them.
+    assert "view_size = 224" in result.output and "capped" in result.output
+    assert "init_stride = 1" in result.output

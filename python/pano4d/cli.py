@@ -64,8 +64,16 @@ def check(
         f"[green]ok[/] {scene}: panorama {cfg.panorama}, {len(cfg.regions)} region(s), "
         f"preset {cfg.preset}"
     )
-    for key, value in cfg.resolved_preset().items():
-        console.print(f"  {key} = {value}")
+    from pano4d.imageio import ImageError, image_size
+
+    try:
+        width, _ = image_size(cfg.panorama)
+    except ImageError as e:
+        fail(str(e))
+    preset = cfg.resolved_preset()
+    for key, value in cfg.resolved_preset(width).items():
+        note = f"  (the preset's {preset[key]}, capped at the panorama's pixel)"
+        console.print(f"  {key} = {value}{note if value != preset[key] else ''}")
 
 
 @app.command()

@@ -326,13 +326,20 @@ class SceneConfig(_Section):
             raise ValueError("; ".join(problems))
         return overrides
 
-    def resolved_preset(self) -> dict[str, int | float | bool]:
-        """The preset's knobs with ``overrides`` applied."""
+    def resolved_preset(self, panorama_width: int | None = None) -> dict[str, int | float | bool]:
+        """The preset's knobs with ``overrides`` applied. Given the panorama's width, the
+        view size is capped where a view pixel matches a panorama pixel: larger views cost
+        time and only resample the same pixels."""
         knobs = dict(PRESETS[self.preset])
         for key, value in self.overrides.items():
             if key not in knobs:
                 raise ConfigError(f"unknown override '{key}'{_suggest(key, knobs)}")
             knobs[key] = value
+        if panorama_width is not None:
+            from pano4d.sphere import matched_view_size
+
+            matched = matched_view_size(panorama_width, self.lift.fov_deg)
+            knobs["view_size"] = min(int(knobs["view_size"]), matched)
         return knobs
 
 

@@ -77,6 +77,19 @@ def read_image(path: PathLike) -> np.ndarray:
     return image.astype(np.float32) / np.float32(scale)
 
 
+def image_size(path: PathLike) -> tuple[int, int]:
+    """(width, height) from the file's header, without decoding the pixels."""
+    file = _existing_file(path, "image")
+    image = oiio.ImageInput.open(str(file))
+    if image is None:
+        raise ImageError(f"{path}: cannot read this image ({_oiio_error()})")
+    try:
+        spec = image.spec()
+        return int(spec.width), int(spec.height)
+    finally:
+        image.close()
+
+
 def read_panorama(path: PathLike) -> np.ndarray:
     """Read an equirectangular panorama as float32 RGB (H, W, 3) in [0, 1].
 

@@ -47,7 +47,7 @@ from pano4d.lift.gaussians import (
 )
 from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews, moved_camera, save_atomic
 from pano4d.resample import equirect_to_perspective
-from pano4d.sphere import matched_view_size, view_layout
+from pano4d.sphere import view_layout
 
 CHECKPOINT_EVERY = 50  # optimisation steps between checkpoints
 DILATE_DEG = 2.0  # margin around the moving region, degrees of arc
@@ -268,12 +268,10 @@ def run_train(
 def _context(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftContext:
     from pano4d.imageio import read_image
 
-    knobs = cfg.resolved_preset()
     suffix = _frame_suffix(cfg)
     first = read_image(frames_dir / f"0000{suffix}")
     full_h, full_w = first.shape[:2]
-    # A view finer than the input's pixel costs time and adds nothing: cap it there.
-    knobs["view_size"] = min(int(knobs["view_size"]), matched_view_size(full_w, cfg.lift.fov_deg))
+    knobs = cfg.resolved_preset(full_w)
     size = working_size(full_w, int(knobs["view_size"]), cfg.lift.fov_deg)
     frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
     regions = _regions_mask(cfg, full_w, full_h)
