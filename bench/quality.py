@@ -9,7 +9,7 @@ moving region, the latter next to the true video's). Prints a table and writes
 bench/out/quality.json.
 
     .venv/bin/python bench/quality.py [--presets draft balanced] [--width 1024] [--frames 4]
-        [--depth file|layout] [--backend wgpu|torch]
+        [--depth file|layout] [--backend wgpu|torch] [--json bench/out/quality.json]
 """
 
 from __future__ import annotations
@@ -136,6 +136,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--depth", choices=["file", "layout"], default="file")
     parser.add_argument("--backend", choices=["wgpu", "torch"], default="wgpu")
+    parser.add_argument("--json", type=Path, default=OUT / "quality.json")
     args = parser.parse_args()
 
     rows = [bench_preset(p, args) for p in args.presets]
@@ -150,13 +151,13 @@ def main() -> None:
             f"{r['flicker']['static']:>9.4f}{r['flicker']['moving']:>9.4f}"
             f"{r['gaussians_stored']:>9}"
         )
-    write_json_atomic(OUT / "quality.json", {
+    write_json_atomic(args.json, {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "torch": torch.__version__, "cuda": torch.cuda.is_available()},
         "scene": {"width": args.width, "frames": args.frames, "seed": args.seed},
         "rows": rows,
     })  # fmt: skip
-    print(f"wrote {OUT / 'quality.json'}")
+    print(f"wrote {args.json}")
 
 
 if __name__ == "__main__":
