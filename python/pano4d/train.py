@@ -75,23 +75,9 @@ class _Progress:
         if not self.enabled:
             yield self
             return
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
+        from pano4d.progress import progress_bar
 
-        with Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("loss {task.fields[loss]}"),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-        ) as bar:
+        with progress_bar("loss") as bar:
             self._bar = bar
             yield self
             self._bar = None

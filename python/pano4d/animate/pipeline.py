@@ -31,14 +31,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
 from rich.table import Table
 
 from pano4d.animate.regions import Regions, build_regions
@@ -46,6 +38,7 @@ from pano4d.config import SceneConfig, config_hash
 from pano4d.fsutil import write_json_atomic
 from pano4d.imageio import read_image, read_panorama, write_image, write_video
 from pano4d.metrics import VideoMetrics
+from pano4d.progress import progress_bar
 
 PREVIEW_MAX_WIDTH = 2048
 
@@ -105,7 +98,7 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
     missing = [t for t, p in enumerate(paths) if not p.is_file()]
     if missing:
         render = _backend(cfg, panorama, regions)
-        with _progress_bar(console) as bar:
+        with progress_bar(console=console) as bar:
             task = bar.add_task(
                 f"animate ({cfg.animate.backend})", total=count, completed=count - len(missing)
             )
@@ -215,19 +208,6 @@ def _preview(frame: np.ndarray) -> np.ndarray:
         return frame
     t = torch.from_numpy(np.ascontiguousarray(frame)).permute(2, 0, 1)[None]
     return F.avg_pool2d(t, factor)[0].permute(1, 2, 0).numpy()
-
-
-def _progress_bar(console: Console) -> Progress:
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
-        console=console,
-        transient=False,
-    )
 
 
 def print_metrics(console: Console, metrics: dict[str, Any]) -> None:
