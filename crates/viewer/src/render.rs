@@ -305,6 +305,7 @@ mod tests {
     use crate::camera::ViewCamera;
     use crate::synthetic;
     use splat_core::ply4d;
+    use splat_core::raster::binding_limit;
 
     fn open(tag: &str, static_count: usize, dynamic_count: usize, times: usize) -> Scene {
         let dir = std::env::temp_dir().join(format!("pano4d-render-{tag}-{}", std::process::id()));
@@ -379,10 +380,7 @@ mod tests {
     #[test]
     fn a_scene_over_the_device_limit_gets_the_draft_advice() {
         let renderer = FrameRenderer::headless().unwrap();
-        let limits = renderer.device().limits();
-        let allowed = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+        let allowed = binding_limit(renderer.device());
         let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
         if over >= (u32::MAX / 64) as usize {
             return; // an adapter whose limit is beyond what one scene may hold anyway

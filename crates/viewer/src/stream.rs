@@ -48,10 +48,6 @@ impl DynamicStream {
         }
     }
 
-    pub fn scene(&self) -> &Arc<Scene> {
-        &self.scene
-    }
-
     /// Starts decoding timestamp `t` unless it is already on its way.
     pub fn prefetch(&mut self, t: usize) {
         if t < self.scene.num_times() && self.pending.insert(t) {

@@ -18,7 +18,7 @@ pub use context::{AdapterSummary, GpuContext};
 pub use renderer::{
     target_texture, Gradients, RenderSettings, Renderer, SceneInput, TARGET_FORMAT,
 };
-pub use resident::ResidentScene;
+pub use resident::{binding_limit, ResidentScene};
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.
 #[derive(Debug, thiserror::Error)]

@@ -4,7 +4,7 @@ use super::context::GpuContext;
 use super::kernels::{
     bind_group, compile, div_ceil, run_linear, scratch_len, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL,
 };
-use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
+use super::resident::{binding_limit, check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
 use crate::camera::Camera;
 use crate::gaussians::{sh_coeffs, GaussianSet};
@@ -271,7 +271,7 @@ fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
 
 /// Errors when `m` intersections of `bytes_each` exceed one storage binding.
 fn check_intersections(device: &wgpu::Device, m: u32, bytes_each: u64) -> Result<(), RasterError> {
-    let binding_limit = device.limits().max_storage_buffer_binding_size;
+    let binding_limit = binding_limit(device);
     if bytes_each * m as u64 > binding_limit {
         return Err(RasterError::Gpu(format!(
             "{m} tile intersections need more than this device's storage binding limit \
@@ -304,11 +304,7 @@ impl GrowBuffer {
         if !big_enough {
             // Headroom so that slowly growing scenes do not reallocate every call, but none
             // past what one binding may hold: a buffer just under the limit must still bind.
-            let limits = device.limits();
-            let limit = limits
-                .max_storage_buffer_binding_size
-                .min(limits.max_buffer_size)
-                .max(bytes);
+            let limit = binding_limit(device).max(bytes);
             let size = (bytes + bytes / 4).min(limit);
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),

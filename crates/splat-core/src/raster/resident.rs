@@ -18,6 +18,14 @@ pub(crate) struct SceneBuffer {
     pub sh_coeffs: u32,
 }
 
+/// The most bytes one storage buffer may hold and bind on `device`.
+pub fn binding_limit(device: &wgpu::Device) -> u64 {
+    let limits = device.limits();
+    limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+}
+
 /// Errors when `n` Gaussians with `k` SH coefficients exceed one storage binding.
 pub(crate) fn check_scene_fits(
     device: &wgpu::Device,
@@ -25,10 +33,7 @@ pub(crate) fn check_scene_fits(
     k: usize,
 ) -> Result<(), RasterError> {
     let bytes = ResidentScene::bytes_for(n, k);
-    let limits = device.limits();
-    let allowed = limits
-        .max_storage_buffer_binding_size
-        .min(limits.max_buffer_size);
+    let allowed = binding_limit(device);
     if bytes > allowed {
         return Err(RasterError::TooLarge {
             gaussians: n,

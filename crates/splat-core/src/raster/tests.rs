@@ -3,7 +3,8 @@
 
 use super::kernels::{scratch_len, SortKernels};
 use super::{
-    target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene, SceneInput,
+    binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer,
+    ResidentScene, SceneInput,
 };
 use crate::camera::Camera;
 use crate::gaussians::GaussianSet;
@@ -353,10 +354,7 @@ fn resident_scene_refuses_what_does_not_fit() {
         .is_err());
     assert_eq!(resident.len(), 8);
     assert!(ResidentScene::new(device, 10, 5).is_err());
-    let limits = device.limits();
-    let allowed = limits
-        .max_storage_buffer_binding_size
-        .min(limits.max_buffer_size);
+    let allowed = binding_limit(device);
     let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
     if over < (u32::MAX / 64) as usize {
         assert!(matches!(
@@ -443,10 +441,7 @@ fn subgroup_and_plain_gradient_sums_agree() {
 #[test]
 fn a_scene_just_under_the_binding_limit_renders() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let limits = renderer.context().device.limits();
-    let allowed = limits
-        .max_storage_buffer_binding_size
-        .min(limits.max_buffer_size);
+    let allowed = binding_limit(&renderer.context().device);
     if allowed > 256 << 20 {
         return; // the edge is only cheap to reach on small-limit adapters such as lavapipe
     }
