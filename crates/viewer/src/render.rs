@@ -141,14 +141,8 @@ impl FrameRenderer {
     /// [`crate::stream::DynamicStream`]), the one drawn. Uploads the static set first, or
     /// again when a larger dynamic set needs more room.
     pub fn show(&mut self, scene: &Scene, t: usize, dynamic: &GaussianSet) -> Result<(), String> {
+        // ResidentScene::write checks the set's arrays and its SH degree against the scene.
         let degree = scene.static_set.sh_degree;
-        if !dynamic.is_empty() && dynamic.sh_degree != degree {
-            return Err(format!(
-                "the dynamic set has SH degree {}, the static set {degree}",
-                dynamic.sh_degree
-            ));
-        }
-        dynamic.validate()?;
         self.shown_time = None;
         let needed = self.static_len + dynamic.len();
         if self.resident.as_ref().is_none_or(|r| r.capacity() < needed) {
@@ -375,6 +369,10 @@ mod tests {
         );
         assert!(grown == fresh_frame(&big, 1));
         assert!(before != grown);
+        // A dynamic set of another SH degree than the scene's is refused.
+        let other_degree = synthetic::scene(1, 5, 1, 2, 3).dynamic.remove(0);
+        let refused = renderer.show(&big, 0, &other_degree).unwrap_err();
+        assert!(refused.contains("SH coefficients"), "{refused}");
     }
 
     #[test]
