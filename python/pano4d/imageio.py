@@ -79,15 +79,8 @@ def read_image(path: PathLike) -> np.ndarray:
 
 def image_size(path: PathLike) -> tuple[int, int]:
     """(width, height) from the file's header, without decoding the pixels."""
-    file = _existing_file(path, "image")
-    image = oiio.ImageInput.open(str(file))
-    if image is None:
-        raise ImageError(f"{path}: cannot read this image ({_oiio_error()})")
-    try:
-        spec = image.spec()
-        return int(spec.width), int(spec.height)
-    finally:
-        image.close()
+    spec = _header(_existing_file(path, "image"))
+    return int(spec.width), int(spec.height)
 
 
 def read_panorama(path: PathLike) -> np.ndarray:
@@ -338,14 +331,19 @@ def _tail(path: Path, size: int) -> bytes:
         return f.read()
 
 
-def _file_bits(path: Path) -> int:
+def _header(path: Path) -> oiio.ImageSpec:
+    """The file's image spec, read without decoding the pixels."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ImageError(f"{path}: cannot read this image: {_oiio_error()}")
     try:
-        return inp.spec().format.size() * 8
+        return oiio.ImageSpec(inp.spec())
     finally:
         inp.close()
+
+
+def _file_bits(path: Path) -> int:
+    return _header(path).format.size() * 8
 
 
 def _aspect_problem(width: int, height: int) -> str:
