@@ -85,7 +85,6 @@ def main() -> None:
         "dir_to_equirect": dir_to_equirect,
         "cameras": cameras,
         "view_directions": layouts,
-        "icosahedron_vertices": sphere.icosahedron_vertices().tolist(),
         "half_pi_check": math.pi / 2,
     }
     OUT.write_text(json.dumps(data, indent=1) + "\n")

@@ -3,6 +3,10 @@
 /// DC term of the real spherical harmonics: colour = 0.5 + SH_C0 * f_dc.
 pub const SH_C0: f32 = 0.282_094_8;
 
+/// Floats per Gaussian besides its SH coefficients: mean 3, log-scale 3, quaternion 4,
+/// opacity 1.
+pub const BASE_FLOATS: usize = 11;
+
 /// Number of SH coefficients per colour channel for `degree` (0..=3).
 pub fn sh_coeffs(degree: u32) -> usize {
     ((degree + 1) * (degree + 1)) as usize
@@ -75,5 +79,92 @@ impl GaussianSet {
             }
         }
         Ok(())
+    }
+}
+
+/// Gaussians in the 3DGS parameterisation, as borrowed flat f32 slices (row-major arrays):
+/// what the rasteriser uploads, from a [`GaussianSet`] or straight from Python's arrays.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneInput<'a> {
+    pub means: &'a [f32],
+    pub log_scales: &'a [f32],
+    /// (w, x, y, z), normalised on use.
+    pub quats: &'a [f32],
+    pub opacity_logits: &'a [f32],
+    /// `[n][k][3]` with k = (degree + 1)².
+    pub sh: &'a [f32],
+}
+
+impl<'a> From<&'a GaussianSet> for SceneInput<'a> {
+    /// Borrows the set's arrays as they are (no copy).
+    fn from(set: &'a GaussianSet) -> Self {
+        Self {
+            means: set.means.as_flattened(),
+            log_scales: set.log_scales.as_flattened(),
+            quats: set.quats.as_flattened(),
+            opacity_logits: &set.opacity_logits,
+            sh: &set.sh,
+        }
+    }
+}
+
+impl SceneInput<'_> {
+    pub fn len(&self) -> usize {
+        self.opacity_logits.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.opacity_logits.is_empty()
+    }
+
+    /// Checks the array lengths and returns (n, SH coefficients per channel), or what is
+    /// wrong with them.
+    pub fn validate(&self) -> Result<(u32, u32), String> {
+        let n = self.len();
+        let bad = |what: &str, got: usize, want: usize| {
+            format!("{what} has {got} values, expected {want} for {n} Gaussians")
+        };
+        if self.means.len() != 3 * n {
+            return Err(bad("means", self.means.len(), 3 * n));
+        }
+        if self.log_scales.len() != 3 * n {
+            return Err(bad("log_scales", self.log_scales.len(), 3 * n));
+        }
+        if self.quats.len() != 4 * n {
+            return Err(bad("quats", self.quats.len(), 4 * n));
+        }
+        let k = if n == 0 { 1 } else { self.sh.len() / (3 * n) };
+        let degree_ok = (0..=3).any(|d| sh_coeffs(d) == k);
+        if !degree_ok || self.sh.len() != 3 * k * n {
+            return Err(format!(
+                "sh has {} values: expected n * k * 3 with k in {{1, 4, 9, 16}} for {n} Gaussians",
+                self.sh.len()
+            ));
+        }
+        let n32 = u32::try_from(n)
+            .ok()
+            .filter(|&v| v < u32::MAX / 64)
+            .ok_or_else(|| format!("too many Gaussians: {n}"))?;
+        Ok((n32, k as u32))
+    }
+
+    /// The parameter arrays in the order of the shaders' SoA sections.
+    pub fn sections(&self) -> [&[f32]; 5] {
+        [
+            self.means,
+            self.log_scales,
+            self.quats,
+            self.opacity_logits,
+            self.sh,
+        ]
+    }
+
+    /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
+    pub fn packed(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(BASE_FLOATS * self.len() + self.sh.len());
+        for part in self.sections() {
+            out.extend_from_slice(part);
+        }
+        out
     }
 }

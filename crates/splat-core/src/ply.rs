@@ -1008,7 +1008,7 @@ mod tests {
             values in proptest::collection::vec(proptest::num::f32::ANY, 0..400),
         ) {
             let k = sh_coeffs(degree);
-            let per = 11 + 3 * k;
+            let per = crate::gaussians::BASE_FLOATS + 3 * k;
             let n = values.len() / per;
             // ANY includes infinities, subnormals and quiet NaNs; every bit pattern must survive.
             let v = |i: usize, j: usize| values[i * per + j];

@@ -10,10 +10,10 @@ use std::time::{Duration, Instant};
 
 use image::RgbaImage;
 use splat_core::camera::Camera;
-use splat_core::gaussians::{sh_coeffs, GaussianSet};
+use splat_core::gaussians::{sh_coeffs, GaussianSet, SceneInput};
 use splat_core::raster::{
     target_texture, AdapterSummary, GpuContext, RasterError, RenderSettings, Renderer,
-    ResidentScene, SceneInput,
+    ResidentScene,
 };
 
 use crate::scene::Scene;

@@ -11,7 +11,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::camera::Camera;
-use crate::raster::{GpuContext, RasterError, RenderSettings, Renderer, SceneInput};
+use crate::gaussians::SceneInput;
+use crate::raster::{GpuContext, RasterError, RenderSettings, Renderer};
 
 static RENDERER: OnceLock<Mutex<Option<Renderer>>> = OnceLock::new();
 

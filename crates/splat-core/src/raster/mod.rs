@@ -6,7 +6,14 @@
 //! (`rasterize.wgsl`). The backward pass re-runs the geometry stages, walks each
 //! pixel's contributors back to front (`rasterize_backward.wgsl`) and carries the 2D
 //! gradients to the 3D parameters (`project_backward.wgsl`).
+//!
+//! Files: `renderer.rs` (pipelines, the forward stages, drawing into a texture),
+//! `backward.rs`, `buffers.rs` (the reusable GPU buffers), `kernels.rs` (sort, scan and
+//! dispatch helpers), `resident.rs` (scenes kept on the GPU), `context.rs` (adapter and
+//! device).
 
+mod backward;
+mod buffers;
 pub mod context;
 mod kernels;
 pub mod renderer;
@@ -14,10 +21,9 @@ mod resident;
 #[cfg(test)]
 mod tests;
 
+pub use backward::Gradients;
 pub use context::{AdapterSummary, GpuContext};
-pub use renderer::{
-    target_texture, Gradients, RenderSettings, Renderer, SceneInput, TARGET_FORMAT,
-};
+pub use renderer::{target_texture, RenderSettings, Renderer, TARGET_FORMAT};
 pub use resident::{binding_limit, ResidentScene};
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.

@@ -1,13 +1,14 @@
 //! The rasteriser: pipelines, reusable buffers, forward and backward.
 
+use super::buffers::{check_intersections, Buffers};
 use super::context::GpuContext;
 use super::kernels::{
     bind_group, compile, div_ceil, run_linear, scratch_len, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL,
 };
-use super::resident::{binding_limit, check_scene_fits, ResidentScene, SceneBuffer};
+use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
 use crate::camera::Camera;
-use crate::gaussians::{sh_coeffs, GaussianSet};
+use crate::gaussians::SceneInput;
 
 const PROJECT_WGSL: &str = include_str!("../../../../shaders/project.wgsl");
 const TILES_WGSL: &str = include_str!("../../../../shaders/tiles.wgsl");
@@ -24,97 +25,8 @@ pub const TILE_SIZE: u32 = 16;
 pub const PIXEL_CHANNELS: usize = 5;
 /// Floats per projected Gaussian (`Projected` in common.wgsl).
 const PROJECTED_FLOATS: u64 = 12;
-/// Floats per intersection gradient (rasterize_backward.wgsl).
-const ISECT_GRAD_FLOATS: u64 = 10;
 /// The EWA Jacobian clamps x/z and y/z to this multiple of tan(half fov), as 3DGS does.
 const JACOBIAN_CLAMP: f64 = 1.3;
-
-/// Gaussians in the 3DGS parameterisation, as flat f32 slices (row-major arrays).
-#[derive(Clone, Copy, Debug)]
-pub struct SceneInput<'a> {
-    pub means: &'a [f32],
-    pub log_scales: &'a [f32],
-    /// (w, x, y, z), normalised on use.
-    pub quats: &'a [f32],
-    pub opacity_logits: &'a [f32],
-    /// `[n][k][3]` with k = (degree + 1)².
-    pub sh: &'a [f32],
-}
-
-impl<'a> From<&'a GaussianSet> for SceneInput<'a> {
-    /// Borrows the set's arrays as they are (no copy).
-    fn from(set: &'a GaussianSet) -> Self {
-        Self {
-            means: set.means.as_flattened(),
-            log_scales: set.log_scales.as_flattened(),
-            quats: set.quats.as_flattened(),
-            opacity_logits: &set.opacity_logits,
-            sh: &set.sh,
-        }
-    }
-}
-
-impl SceneInput<'_> {
-    pub fn len(&self) -> usize {
-        self.opacity_logits.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.opacity_logits.is_empty()
-    }
-
-    /// Checks the array lengths and returns (n, SH coefficients per channel).
-    pub(crate) fn validate(&self) -> Result<(u32, u32), RasterError> {
-        let n = self.len();
-        let bad = |what: &str, got: usize, want: usize| {
-            RasterError::InvalidInput(format!(
-                "{what} has {got} values, expected {want} for {n} Gaussians"
-            ))
-        };
-        if self.means.len() != 3 * n {
-            return Err(bad("means", self.means.len(), 3 * n));
-        }
-        if self.log_scales.len() != 3 * n {
-            return Err(bad("log_scales", self.log_scales.len(), 3 * n));
-        }
-        if self.quats.len() != 4 * n {
-            return Err(bad("quats", self.quats.len(), 4 * n));
-        }
-        let k = if n == 0 { 1 } else { self.sh.len() / (3 * n) };
-        let degree_ok = (0..=3).any(|d| sh_coeffs(d) == k);
-        if !degree_ok || self.sh.len() != 3 * k * n {
-            return Err(RasterError::InvalidInput(format!(
-                "sh has {} values: expected n * k * 3 with k in {{1, 4, 9, 16}} for {n} Gaussians",
-                self.sh.len()
-            )));
-        }
-        let n32 = u32::try_from(n)
-            .ok()
-            .filter(|&v| v < u32::MAX / 64)
-            .ok_or_else(|| RasterError::InvalidInput(format!("too many Gaussians: {n}")))?;
-        Ok((n32, k as u32))
-    }
-
-    /// The parameter arrays in the order of the shaders' SoA sections.
-    pub(crate) fn sections(&self) -> [&[f32]; 5] {
-        [
-            self.means,
-            self.log_scales,
-            self.quats,
-            self.opacity_logits,
-            self.sh,
-        ]
-    }
-
-    /// The SoA f32 layout the shaders read: means, log-scales, quats, opacity, SH.
-    fn packed(&self) -> Vec<f32> {
-        let mut out = Vec::with_capacity(11 * self.len() + self.sh.len());
-        for part in self.sections() {
-            out.extend_from_slice(part);
-        }
-        out
-    }
-}
 
 /// Per-call options.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -162,19 +74,9 @@ pub fn target_texture(device: &wgpu::Device, width: u32, height: u32) -> wgpu::T
     })
 }
 
-/// Gradients in the layout of [`SceneInput`].
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Gradients {
-    pub means: Vec<f32>,
-    pub log_scales: Vec<f32>,
-    pub quats: Vec<f32>,
-    pub opacity_logits: Vec<f32>,
-    pub sh: Vec<f32>,
-}
-
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-struct RenderParams {
+pub(super) struct RenderParams {
     rot_rows: [[f32; 4]; 3],
     cam_pos: [f32; 4],
     intrinsics: [f32; 4],
@@ -182,10 +84,10 @@ struct RenderParams {
     background: [f32; 4],
     width: u32,
     height: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    num_gaussians: u32,
-    sh_coeffs: u32,
+    pub(super) tiles_x: u32,
+    pub(super) tiles_y: u32,
+    pub(super) num_gaussians: u32,
+    pub(super) sh_coeffs: u32,
     antialiased: u32,
     num_intersections: u32,
     gaussian_stride: u32,
@@ -269,104 +171,34 @@ fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     Ok(())
 }
 
-/// Errors when `m` intersections of `bytes_each` exceed one storage binding.
-fn check_intersections(device: &wgpu::Device, m: u32, bytes_each: u64) -> Result<(), RasterError> {
-    let binding_limit = binding_limit(device);
-    if bytes_each * m as u64 > binding_limit {
-        return Err(RasterError::Gpu(format!(
-            "{m} tile intersections need more than this device's storage binding limit \
-             ({binding_limit} bytes); render at a lower resolution or with fewer Gaussians"
-        )));
-    }
-    Ok(())
-}
-
-/// A storage buffer that grows (never shrinks) to the largest size asked of it.
-struct GrowBuffer {
-    label: &'static str,
-    usage: wgpu::BufferUsages,
-    buffer: Option<wgpu::Buffer>,
-}
-
-impl GrowBuffer {
-    fn new(label: &'static str, extra: wgpu::BufferUsages) -> Self {
-        Self {
-            label,
-            usage: wgpu::BufferUsages::STORAGE | extra,
-            buffer: None,
-        }
-    }
-
-    fn get(&mut self, device: &wgpu::Device, bytes: u64) -> &wgpu::Buffer {
-        // Runtime-sized arrays need at least one element bound, whatever n is.
-        let bytes = bytes.max(256).next_multiple_of(16);
-        let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
-        if !big_enough {
-            // Headroom so that slowly growing scenes do not reallocate every call, but none
-            // past what one binding may hold: a buffer just under the limit must still bind.
-            let limit = binding_limit(device).max(bytes);
-            let size = (bytes + bytes / 4).min(limit);
-            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(self.label),
-                size: size.next_multiple_of(16),
-                usage: self.usage,
-                mapped_at_creation: false,
-            }));
-        }
-        self.buffer.as_ref().expect("allocated above")
-    }
-}
-
-struct Buffers {
-    params: wgpu::Buffer,
-    gaussians: GrowBuffer,
-    projected: GrowBuffer,
-    tile_counts: GrowBuffer,
-    depth_keys: [GrowBuffer; 2],
-    depth_vals: [GrowBuffer; 2],
-    offsets: GrowBuffer,
-    sort_counts: GrowBuffer,
-    block_sums: GrowBuffer,
-    isect_keys: [GrowBuffer; 2],
-    isect_slots: [GrowBuffer; 2],
-    isect_gaussian: GrowBuffer,
-    ranges: GrowBuffer,
-    pixels: GrowBuffer,
-    pixel_state: GrowBuffer,
-    v_pixels: GrowBuffer,
-    isect_grads: GrowBuffer,
-    grads: GrowBuffer,
-    readback: GrowBuffer,
-}
-
 /// The geometry of one frame, left in the buffers by [`Renderer::encode_frame`].
-struct Frame {
-    scene: SceneBuffer,
-    params: RenderParams,
-    num_intersections: u32,
+pub(crate) struct Frame {
+    pub(super) scene: SceneBuffer,
+    pub(super) params: RenderParams,
+    pub(super) num_intersections: u32,
     /// Which ping-pong buffer holds the depth-sorted Gaussian indices.
-    depth_sorted: usize,
+    pub(super) depth_sorted: usize,
     /// Which ping-pong buffer holds the tile-sorted slots.
-    sorted: usize,
+    pub(super) sorted: usize,
 }
 
 /// Compiled pipelines and reusable buffers on one device. Not thread-safe by itself:
 /// callers serialise access (the Python binding keeps one behind a mutex).
 pub struct Renderer {
-    ctx: GpuContext,
+    pub(super) ctx: GpuContext,
     sort: SortKernels,
     project: wgpu::ComputePipeline,
     gather_counts: wgpu::ComputePipeline,
     emit: wgpu::ComputePipeline,
     ranges: wgpu::ComputePipeline,
     rasterize: wgpu::ComputePipeline,
-    rasterize_backward: wgpu::ComputePipeline,
-    project_backward: wgpu::ComputePipeline,
+    pub(super) rasterize_backward: wgpu::ComputePipeline,
+    pub(super) project_backward: wgpu::ComputePipeline,
     present: wgpu::ComputePipeline,
-    buffers: Buffers,
+    pub(super) buffers: Buffers,
 }
 
-fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
+pub(super) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
     match pollster::block_on(scope.pop()) {
         Some(e) => Err(RasterError::Gpu(e.to_string())),
         None => Ok(()),
@@ -393,8 +225,6 @@ impl Renderer {
         } else {
             GRAD_SUM_ATOMIC_WGSL
         };
-        let copy = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
-        let pair = |label| [GrowBuffer::new(label, copy), GrowBuffer::new(label, copy)];
         let renderer = Self {
             sort: SortKernels::new(device),
             project: one("project", &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_WGSL]),
@@ -411,36 +241,7 @@ impl Renderer {
                 &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_BACKWARD_WGSL],
             ),
             present: one("present", &[COMMON_WGSL, PRESENT_WGSL]),
-            buffers: Buffers {
-                params: device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("render params"),
-                    size: std::mem::size_of::<RenderParams>() as u64,
-                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                }),
-                gaussians: GrowBuffer::new("gaussians", copy),
-                projected: GrowBuffer::new("projected", copy),
-                tile_counts: GrowBuffer::new("tile counts", copy),
-                depth_keys: pair("depth keys"),
-                depth_vals: pair("depth values"),
-                offsets: GrowBuffer::new("offsets", copy),
-                sort_counts: GrowBuffer::new("sort counts", copy),
-                block_sums: GrowBuffer::new("block sums", copy),
-                isect_keys: pair("intersection keys"),
-                isect_slots: pair("intersection slots"),
-                isect_gaussian: GrowBuffer::new("intersection gaussian", copy),
-                ranges: GrowBuffer::new("tile ranges", copy),
-                pixels: GrowBuffer::new("pixels", copy),
-                pixel_state: GrowBuffer::new("pixel state", copy),
-                v_pixels: GrowBuffer::new("pixel gradients", copy),
-                isect_grads: GrowBuffer::new("intersection gradients", copy),
-                grads: GrowBuffer::new("gradients", copy),
-                readback: GrowBuffer {
-                    label: "readback",
-                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                    buffer: None,
-                },
-            },
+            buffers: Buffers::new(device),
             ctx,
         };
         pop_error(scope)?;
@@ -452,7 +253,11 @@ impl Renderer {
     }
 
     /// Copies `bytes` from `src` to the host.
-    fn read_back(&mut self, src: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
+    pub(super) fn read_back(
+        &mut self,
+        src: &wgpu::Buffer,
+        bytes: u64,
+    ) -> Result<Vec<u8>, RasterError> {
         let device = &self.ctx.device;
         let staging = self.buffers.readback.get(device, bytes).clone();
         let mut encoder = device.create_command_encoder(&Default::default());
@@ -463,8 +268,8 @@ impl Renderer {
 
     /// Copies `scene` into the renderer's own Gaussian buffer (training and one-off
     /// renders; the viewer keeps a [`ResidentScene`] instead).
-    fn upload(&mut self, scene: &SceneInput<'_>) -> Result<SceneBuffer, RasterError> {
-        let (n, k) = scene.validate()?;
+    pub(super) fn upload(&mut self, scene: &SceneInput<'_>) -> Result<SceneBuffer, RasterError> {
+        let (n, k) = scene.validate().map_err(RasterError::InvalidInput)?;
         let device = &self.ctx.device;
         let bytes = ResidentScene::bytes_for(n as usize, k as usize);
         check_scene_fits(device, n as usize, k as usize)?;
@@ -482,7 +287,7 @@ impl Renderer {
 
     /// Runs every stage up to and including the forward blending; the results stay in
     /// the buffers for the read-back, the backward pass or [`Self::draw`]'s conversion.
-    fn encode_frame(
+    pub(crate) fn encode_frame(
         &mut self,
         scene: SceneBuffer,
         camera: &Camera,
@@ -491,16 +296,33 @@ impl Renderer {
         validate_camera(camera)?;
         validate_settings(settings)?;
         let mut params = render_params(camera, settings, &scene);
+        self.ctx
+            .queue
+            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(&params));
+        let depth_sorted = self.encode_geometry(&scene)?;
+        let m = self.read_intersection_count(scene.len)?;
+        // Every per-intersection array must fit one storage binding (128 MiB on lavapipe).
+        check_intersections(&self.ctx.device, m, 4)?;
+        params.num_intersections = m;
+        self.ctx
+            .queue
+            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(&params));
+        let sorted = self.encode_blend(&params, depth_sorted)?;
+        Ok(Frame {
+            scene,
+            params,
+            num_intersections: m,
+            depth_sorted,
+            sorted,
+        })
+    }
+
+    /// Stages 1–3: projection, depth sort, tile-count scan (one submit). Returns which
+    /// ping-pong buffer holds the depth-sorted indices.
+    fn encode_geometry(&mut self, scene: &SceneBuffer) -> Result<usize, RasterError> {
         let n = scene.len;
         let device = self.ctx.device.clone();
-        let queue = self.ctx.queue.clone();
         let b = &mut self.buffers;
-        let num_tiles = params.tiles_x * params.tiles_y;
-        let pixels = camera.width as u64 * camera.height as u64;
-
-        // Stage 1: projection, depth sort, tile-count scan.
-        let gaussians = scene.buffer.clone();
-        queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
         let n64 = n as u64;
         let (counts_len, sums_len) = scratch_len(n + 1);
         let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
@@ -514,83 +336,96 @@ impl Renderer {
             b.depth_vals[1].get(&device, 4 * n64).clone(),
         ];
         let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
+        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
+        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        if n > 0 {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            run_linear(
+                &mut pass,
+                &device,
+                &self.project,
+                &[
+                    (0, &b.params),
+                    (1, &scene.buffer),
+                    (2, &projected),
+                    (3, &tile_counts),
+                    (4, &dk[0]),
+                    (5, &dv[0]),
+                ],
+                div_ceil(n, 256),
+            );
+        }
+        let depth_sorted = self.sort.encode_sort(
+            &device,
+            &mut encoder,
+            [&dk[0], &dk[1]],
+            [&dv[0], &dv[1]],
+            &sort_counts,
+            &block_sums,
+            n,
+            32,
+        );
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            run_linear(
+                &mut pass,
+                &device,
+                &self.gather_counts,
+                &[
+                    (0, &b.params),
+                    (2, &tile_counts),
+                    (3, &dv[depth_sorted]),
+                    (4, &offsets),
+                ],
+                div_ceil(n + 1, 256),
+            );
+        }
+        self.sort
+            .encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        self.ctx.queue.submit([encoder.finish()]);
+        pop_error(scope)?;
+        Ok(depth_sorted)
+    }
+
+    /// The number of tile intersections M: the scan's last entry, read back because it
+    /// sizes the tile sort.
+    fn read_intersection_count(&mut self, n: u32) -> Result<u32, RasterError> {
+        let device = &self.ctx.device;
+        let offsets = self.buffers.offsets.get(device, 4 * (n as u64 + 1)).clone();
+        let staging = self.buffers.readback.get(device, 4).clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(&offsets, 4 * n as u64, &staging, 0, 4);
+        self.ctx.queue.submit([encoder.finish()]);
+        let bytes = self.read_mapped(&staging, 4)?;
+        Ok(u32::from_le_bytes(bytes[..4].try_into().expect("4 bytes")))
+    }
+
+    /// Stages 4–7: intersections, tile sort, ranges, blending (one submit). Returns which
+    /// ping-pong buffer holds the tile-sorted slots.
+    fn encode_blend(
+        &mut self,
+        params: &RenderParams,
+        depth_sorted: usize,
+    ) -> Result<usize, RasterError> {
+        let device = self.ctx.device.clone();
+        let b = &mut self.buffers;
+        let m = params.num_intersections;
+        let n64 = params.num_gaussians as u64;
+        let m64 = m as u64;
+        let num_tiles = params.tiles_x * params.tiles_y;
+        let pixels = params.width as u64 * params.height as u64;
+        let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
+        let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
+        let depth_vals = b.depth_vals[depth_sorted].get(&device, 4 * n64).clone();
+        let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
         let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
         let out_pixels = b
             .pixels
             .get(&device, 4 * PIXEL_CHANNELS as u64 * pixels)
             .clone();
         let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
-
-        let groups_n = div_ceil(n, 256);
-        let mut encoder = device.create_command_encoder(&Default::default());
-        let depth_sorted;
-        {
-            let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
-            let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
-            if n > 0 {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                run_linear(
-                    &mut pass,
-                    &device,
-                    &self.project,
-                    &[
-                        (0, &b.params),
-                        (1, &gaussians),
-                        (2, &projected),
-                        (3, &tile_counts),
-                        (4, &dk[0]),
-                        (5, &dv[0]),
-                    ],
-                    groups_n,
-                );
-            }
-            depth_sorted = self.sort.encode_sort(
-                &device,
-                &mut encoder,
-                [&dk[0], &dk[1]],
-                [&dv[0], &dv[1]],
-                &sort_counts,
-                &block_sums,
-                n,
-                32,
-            );
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                run_linear(
-                    &mut pass,
-                    &device,
-                    &self.gather_counts,
-                    &[
-                        (0, &b.params),
-                        (2, &tile_counts),
-                        (3, &dv[depth_sorted]),
-                        (4, &offsets),
-                    ],
-                    div_ceil(n + 1, 256),
-                );
-            }
-            self.sort
-                .encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
-        }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        queue.submit([encoder.finish()]);
-        pop_error(scope)?;
-        let total_bytes = {
-            let staging = self.buffers.readback.get(&device, 4).clone();
-            let mut encoder = device.create_command_encoder(&Default::default());
-            encoder.copy_buffer_to_buffer(&offsets, 4 * n64, &staging, 0, 4);
-            queue.submit([encoder.finish()]);
-            self.read_mapped(&staging, 4)?
-        };
-        let m = u32::from_le_bytes(total_bytes[..4].try_into().expect("4 bytes"));
-        // Every per-intersection array must fit one storage binding (128 MiB on lavapipe).
-        check_intersections(&device, m, 4)?;
-        params.num_intersections = m;
-        let b = &mut self.buffers;
-        queue.write_buffer(&b.params, 0, bytemuck::bytes_of(&params));
-
-        // Stage 2: intersections, tile sort, ranges, blending.
-        let m64 = m as u64;
         let ik = [
             b.isect_keys[0].get(&device, 4 * m64).clone(),
             b.isect_keys[1].get(&device, 4 * m64).clone(),
@@ -614,13 +449,13 @@ impl Renderer {
                     (0, &b.params),
                     (1, &projected),
                     (2, &tile_counts),
-                    (3, &dv[depth_sorted]),
+                    (3, &depth_vals),
                     (4, &offsets),
                     (5, &ik[0]),
                     (6, &is[0]),
                     (7, &ig),
                 ],
-                groups_n,
+                div_ceil(params.num_gaussians, 256),
             );
         }
         let tile_bits = u32::BITS - (num_tiles - 1).leading_zeros();
@@ -664,15 +499,9 @@ impl Renderer {
             pass.dispatch_workgroups(params.tiles_x, params.tiles_y, 1);
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        queue.submit([encoder.finish()]);
+        self.ctx.queue.submit([encoder.finish()]);
         pop_error(scope)?;
-        Ok(Frame {
-            scene,
-            params,
-            num_intersections: m,
-            depth_sorted,
-            sorted,
-        })
+        Ok(sorted)
     }
 
     fn read_mapped(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
@@ -810,108 +639,5 @@ impl Renderer {
             .flat_map(|r| &r[..row as usize])
             .copied()
             .collect())
-    }
-
-    /// Gradients of a loss w.r.t. the scene, given its gradient w.r.t. the forward
-    /// output (`v_pixels`: H·W·5 floats in the forward's layout). Re-runs the forward
-    /// geometry, so it needs no state from an earlier call.
-    pub fn backward(
-        &mut self,
-        scene: &SceneInput<'_>,
-        camera: &Camera,
-        settings: &RenderSettings,
-        v_pixels: &[f32],
-    ) -> Result<Gradients, RasterError> {
-        let pixels = camera.width as usize * camera.height as usize;
-        if v_pixels.len() != PIXEL_CHANNELS * pixels {
-            return Err(RasterError::InvalidInput(format!(
-                "pixel gradient has {} values, expected {}",
-                v_pixels.len(),
-                PIXEL_CHANNELS * pixels
-            )));
-        }
-        let scene = self.upload(scene)?;
-        let frame = self.encode_frame(scene, camera, settings)?;
-        let device = self.ctx.device.clone();
-        let queue = self.ctx.queue.clone();
-        let n = frame.params.num_gaussians as u64;
-        let k = frame.params.sh_coeffs as u64;
-        let grad_floats = 11 * n + 3 * k * n;
-        let b = &mut self.buffers;
-        let v_buf = b.v_pixels.get(&device, 4 * v_pixels.len() as u64).clone();
-        queue.write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
-        check_intersections(&device, frame.num_intersections, 4 * ISECT_GRAD_FLOATS)?;
-        let m = frame.num_intersections as u64;
-        let isect_grads = b
-            .isect_grads
-            .get(&device, 4 * ISECT_GRAD_FLOATS * m)
-            .clone();
-        let grads = b.grads.get(&device, 4 * grad_floats).clone();
-        let get = |g: &GrowBuffer| g.buffer.clone().expect("allocated by encode_frame");
-        let depth_vals = get(&b.depth_vals[frame.depth_sorted]);
-        let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.clear_buffer(&isect_grads, 0, None);
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.rasterize_backward);
-            let group = bind_group(
-                &device,
-                &self.rasterize_backward,
-                &[
-                    (0, &b.params),
-                    (1, &get(&b.projected)),
-                    (2, &get(&b.isect_slots[frame.sorted])),
-                    (3, &get(&b.isect_gaussian)),
-                    (4, &get(&b.ranges)),
-                    (5, &get(&b.pixel_state)),
-                    (6, &v_buf),
-                    (7, &isect_grads),
-                ],
-            );
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
-            if n > 0 {
-                run_linear(
-                    &mut pass,
-                    &device,
-                    &self.project_backward,
-                    &[
-                        (0, &b.params),
-                        (1, &frame.scene.buffer),
-                        (2, &get(&b.tile_counts)),
-                        (3, &depth_vals),
-                        (4, &get(&b.offsets)),
-                        (5, &isect_grads),
-                        (6, &grads),
-                    ],
-                    div_ceil(n as u32, 256),
-                );
-            }
-        }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        queue.submit([encoder.finish()]);
-        pop_error(scope)?;
-        let flat: Vec<f32> = if n == 0 {
-            Vec::new()
-        } else {
-            bytemuck::pod_collect_to_vec(&self.read_back(&grads, 4 * grad_floats)?)
-        };
-        let n = n as usize;
-        let k = k as usize;
-        let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
-            .into_iter()
-            .scan(0, |start, len| {
-                let range = *start..*start + len;
-                *start += len;
-                Some(flat[range].to_vec())
-            });
-        let mut next = || parts.next().expect("five parts");
-        Ok(Gradients {
-            means: next(),
-            log_scales: next(),
-            quats: next(),
-            opacity_logits: next(),
-            sh: next(),
-        })
     }
 }

@@ -1,12 +1,8 @@
 //! Gaussians kept on the GPU between frames, for the viewer: the static set is written
 //! once and each timestamp's dynamic set overwrites only the part after it.
 
-use super::renderer::SceneInput;
 use super::RasterError;
-
-/// Floats per Gaussian besides its SH coefficients: mean 3, log-scale 3, quaternion 4,
-/// opacity 1.
-const BASE_FLOATS: usize = 11;
+use crate::gaussians::{SceneInput, BASE_FLOATS};
 
 /// A Gaussian buffer in the shaders' SoA layout: sections of `stride` entries of which the
 /// first `len` are drawn.
@@ -118,7 +114,7 @@ impl ResidentScene {
         first: usize,
         part: &SceneInput<'_>,
     ) -> Result<(), RasterError> {
-        let (n, k) = part.validate()?;
+        let (n, k) = part.validate().map_err(RasterError::InvalidInput)?;
         let end = first + n as usize;
         if end > self.capacity as usize || first > self.len as usize {
             return Err(RasterError::InvalidInput(format!(

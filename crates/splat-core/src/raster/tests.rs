@@ -3,11 +3,10 @@
 
 use super::kernels::{scratch_len, SortKernels};
 use super::{
-    binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer,
-    ResidentScene, SceneInput,
+    binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene,
 };
 use crate::camera::Camera;
-use crate::gaussians::GaussianSet;
+use crate::gaussians::{GaussianSet, SceneInput};
 use glam::DVec3;
 use wgpu::util::DeviceExt;
 

@@ -16,8 +16,9 @@ use pano4d_viewer::scene::Scene;
 use pano4d_viewer::stream::DynamicStream;
 use pano4d_viewer::synthetic;
 use serde::Serialize;
+use splat_core::gaussians::SceneInput;
 use splat_core::ply4d;
-use splat_core::raster::{GpuContext, RenderSettings, Renderer, SceneInput};
+use splat_core::raster::{GpuContext, RenderSettings, Renderer};
 
 /// Timestamps in each benchmark scene; playback cycles through them.
 const TIMES: usize = 8;

@@ -1,0 +1,117 @@
+//! The renderer's reusable GPU buffers: each grows to the largest size a call has asked
+//! of it and is kept for the next call, so a training loop allocates nothing per step.
+
+use super::renderer::RenderParams;
+use super::resident::binding_limit;
+use super::RasterError;
+
+/// Errors when `m` intersections of `bytes_each` exceed one storage binding.
+pub(super) fn check_intersections(
+    device: &wgpu::Device,
+    m: u32,
+    bytes_each: u64,
+) -> Result<(), RasterError> {
+    let binding_limit = binding_limit(device);
+    if bytes_each * m as u64 > binding_limit {
+        return Err(RasterError::Gpu(format!(
+            "{m} tile intersections need more than this device's storage binding limit \
+             ({binding_limit} bytes); render at a lower resolution or with fewer Gaussians"
+        )));
+    }
+    Ok(())
+}
+
+/// A storage buffer that grows (never shrinks) to the largest size asked of it.
+pub(super) struct GrowBuffer {
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+    pub(super) buffer: Option<wgpu::Buffer>,
+}
+
+impl GrowBuffer {
+    pub(super) fn new(label: &'static str, extra: wgpu::BufferUsages) -> Self {
+        Self {
+            label,
+            usage: wgpu::BufferUsages::STORAGE | extra,
+            buffer: None,
+        }
+    }
+
+    pub(super) fn get(&mut self, device: &wgpu::Device, bytes: u64) -> &wgpu::Buffer {
+        // Runtime-sized arrays need at least one element bound, whatever n is.
+        let bytes = bytes.max(256).next_multiple_of(16);
+        let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
+        if !big_enough {
+            // Headroom so that slowly growing scenes do not reallocate every call, but none
+            // past what one binding may hold: a buffer just under the limit must still bind.
+            let limit = binding_limit(device).max(bytes);
+            let size = (bytes + bytes / 4).min(limit);
+            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(self.label),
+                size: size.next_multiple_of(16),
+                usage: self.usage,
+                mapped_at_creation: false,
+            }));
+        }
+        self.buffer.as_ref().expect("allocated above")
+    }
+}
+
+pub(super) struct Buffers {
+    pub(super) params: wgpu::Buffer,
+    pub(super) gaussians: GrowBuffer,
+    pub(super) projected: GrowBuffer,
+    pub(super) tile_counts: GrowBuffer,
+    pub(super) depth_keys: [GrowBuffer; 2],
+    pub(super) depth_vals: [GrowBuffer; 2],
+    pub(super) offsets: GrowBuffer,
+    pub(super) sort_counts: GrowBuffer,
+    pub(super) block_sums: GrowBuffer,
+    pub(super) isect_keys: [GrowBuffer; 2],
+    pub(super) isect_slots: [GrowBuffer; 2],
+    pub(super) isect_gaussian: GrowBuffer,
+    pub(super) ranges: GrowBuffer,
+    pub(super) pixels: GrowBuffer,
+    pub(super) pixel_state: GrowBuffer,
+    pub(super) v_pixels: GrowBuffer,
+    pub(super) isect_grads: GrowBuffer,
+    pub(super) grads: GrowBuffer,
+    pub(super) readback: GrowBuffer,
+}
+
+impl Buffers {
+    pub(super) fn new(device: &wgpu::Device) -> Self {
+        let copy = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let pair = |label| [GrowBuffer::new(label, copy), GrowBuffer::new(label, copy)];
+        Self {
+            params: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("render params"),
+                size: std::mem::size_of::<RenderParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            gaussians: GrowBuffer::new("gaussians", copy),
+            projected: GrowBuffer::new("projected", copy),
+            tile_counts: GrowBuffer::new("tile counts", copy),
+            depth_keys: pair("depth keys"),
+            depth_vals: pair("depth values"),
+            offsets: GrowBuffer::new("offsets", copy),
+            sort_counts: GrowBuffer::new("sort counts", copy),
+            block_sums: GrowBuffer::new("block sums", copy),
+            isect_keys: pair("intersection keys"),
+            isect_slots: pair("intersection slots"),
+            isect_gaussian: GrowBuffer::new("intersection gaussian", copy),
+            ranges: GrowBuffer::new("tile ranges", copy),
+            pixels: GrowBuffer::new("pixels", copy),
+            pixel_state: GrowBuffer::new("pixel state", copy),
+            v_pixels: GrowBuffer::new("pixel gradients", copy),
+            isect_grads: GrowBuffer::new("intersection gradients", copy),
+            grads: GrowBuffer::new("gradients", copy),
+            readback: GrowBuffer {
+                label: "readback",
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                buffer: None,
+            },
+        }
+    }
+}
