@@ -25,7 +25,7 @@ from pano4d.animate.regions import (
     sphere_distance_px,
 )
 from pano4d.config import ConfigError, Motion, Region, SceneConfig, validate_config
-from pano4d.imageio import read_image, write_image
+from pano4d.images import read_image, write_image
 from pano4d.sphere import dir_to_equirect, view_layout
 
 WIDTH, HEIGHT = 256, 128

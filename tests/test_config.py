@@ -10,7 +10,7 @@ import yaml
 
 from pano4d import config
 from pano4d.config import PRESETS, ConfigError, SceneConfig, config_hash, load_config
-from pano4d.imageio import write_image
+from pano4d.images import write_image
 
 MINIMAL = "panorama: pano.png\nregions:\n  - box: [10, 20, 110, 60]\n"
 

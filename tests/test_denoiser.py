@@ -15,7 +15,7 @@ from pano4d.animate.denoiser import PanoramicDenoiser, SphereLatent, euler_step,
 from pano4d.animate.noise import build_footprints, footprints_for_views, sphere_white_noise
 from pano4d.camera import Camera
 from pano4d.config import validate_config
-from pano4d.imageio import read_image
+from pano4d.images import read_image
 from pano4d.resample import sphere_sampler
 from pano4d.sphere import (
     equirect_directions,
@@ -245,7 +245,7 @@ def tiny_svd_mask(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _scene(tmp_path: Path, weights: Path) -> tuple:
     from pano4d.animate.regions import moving_mask
-    from pano4d.imageio import write_image
+    from pano4d.images import write_image
 
     # A smooth panorama, written and read back through the config like a user's.
     dirs = equirect_directions(128, 64, torch.float64)

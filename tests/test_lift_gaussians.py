@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pano4d.gaussians import SH_C0, Gaussians
-from pano4d.lift.gaussians import (
+from pano4d.lift.initial import (
     dilate_mask,
     facing_rotations,
     init_gaussians,

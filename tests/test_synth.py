@@ -187,7 +187,7 @@ def test_bad_arguments_are_refused(scene: synth.SynthScene) -> None:
 
 def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
     from pano4d.config import load_config
-    from pano4d.imageio import read_image
+    from pano4d.images import read_image
 
     out = tmp_path / "synth"
     (out / "gt" / "frames").mkdir(parents=True)

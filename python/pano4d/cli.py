@@ -64,7 +64,7 @@ def check(
         f"[green]ok[/] {scene}: panorama {cfg.panorama}, {len(cfg.regions)} region(s), "
         f"preset {cfg.preset}"
     )
-    from pano4d.imageio import ImageError, image_size
+    from pano4d.images import ImageError, image_size
 
     try:
         width, _ = image_size(cfg.panorama)
@@ -130,7 +130,7 @@ def evaluate(
     from pano4d import metrics
     from pano4d.animate.pipeline import animate_folder, print_metrics
     from pano4d.animate.regions import build_regions
-    from pano4d.imageio import read_panorama
+    from pano4d.images import read_panorama
 
     cfg = load_scene_config(scene)
     frames = animate_folder(cfg) / "frames"
@@ -194,14 +194,14 @@ def render_command(
     backend: Annotated[str, typer.Option(help="wgpu | torch.")] = "wgpu",
 ) -> None:
     """Render test views of a scene headless, through the same rasteriser as training."""
-    from pano4d import views
+    from pano4d import camera_paths
 
     try:
         if path is None:
-            cam = views.parse_camera(camera, width, height)
-            views.render_still(scene, cam, time, out, backend=backend)
+            cam = camera_paths.parse_camera(camera, width, height)
+            camera_paths.render_still(scene, cam, time, out, backend=backend)
         else:
-            views.render_path(scene, path, out, width, height, frames, fps, backend=backend)
+            camera_paths.render_path(scene, path, out, width, height, frames, fps, backend=backend)
     except (OSError, ValueError, IndexError, RuntimeError) as e:
         fail(str(e))
     console.print(f"wrote {out}")

@@ -194,7 +194,7 @@ class Region(_Section):
     def to_mask(self, width: int, height: int) -> np.ndarray:
         """The region as a bool (height, width) mask; a pixel is in a box if its centre is."""
         if self.mask is not None:
-            from pano4d.imageio import read_mask
+            from pano4d.images import read_mask
 
             mask = read_mask(self.mask, width, height)
             if not mask.any():

@@ -303,7 +303,7 @@ def evaluate_frames(
 ) -> dict[str, Any]:
     """``animate_metrics`` of the frames in ``folder``; the panorama and mask may be arrays
     or image paths (a mask file: white = moves)."""
-    from pano4d.imageio import read_image, read_mask, read_panorama
+    from pano4d.images import read_image, read_mask, read_panorama
 
     if isinstance(panorama, str | os.PathLike):
         panorama = read_panorama(panorama)

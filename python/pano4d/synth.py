@@ -1045,7 +1045,7 @@ def write_scene(
     ``seed`` (optional) must be the scene's own; it is what scene.yaml records. Frame and
     view PNGs of an earlier run in the same folder are replaced, not left behind.
     """
-    from pano4d.imageio import write_image
+    from pano4d.images import write_image
 
     if seed is not None and seed != scene.seed:
         raise ValueError(f"scene was made with seed {scene.seed}, not {seed}")

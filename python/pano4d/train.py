@@ -38,7 +38,7 @@ from pano4d.gaussians import Gaussians
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.features import make_feature_model
-from pano4d.lift.gaussians import (
+from pano4d.lift.initial import (
     dilate_mask,
     init_gaussians,
     init_sphere,
@@ -108,7 +108,7 @@ def read_frames(
     folder: Path, count: int, size: tuple[int, int], suffix: str = ".png"
 ) -> torch.Tensor:
     """The animation frames (L, H, W, 3) area-downsampled to ``size`` (W, H)."""
-    from pano4d.imageio import read_image
+    from pano4d.images import read_image
 
     frames = []
     for t in range(count):
@@ -252,7 +252,7 @@ def run_train(
 
 
 def _context(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftContext:
-    from pano4d.imageio import read_image
+    from pano4d.images import read_image
 
     suffix = _frame_suffix(cfg)
     first = read_image(frames_dir / f"0000{suffix}")
@@ -553,7 +553,7 @@ def turntable_cameras(size: tuple[int, int], median_depth: float, count: int) ->
 
 def read_gt_views(panorama: Path) -> list[dict[str, Any]]:
     """gt/views.json entries beside the panorama (with 'camera' and 'image' loaded), or []."""
-    from pano4d.imageio import read_image
+    from pano4d.images import read_image
 
     path = panorama.parent / "gt" / "views.json"
     if not path.is_file():
@@ -635,7 +635,7 @@ def _export(
     split: Split,
 ) -> dict[str, Any]:
     from pano4d import ply4d
-    from pano4d.imageio import write_contact_sheet, write_video
+    from pano4d.images import write_contact_sheet, write_video
 
     start = time.perf_counter()
     out = Path(ctx.cfg.output)

@@ -10,7 +10,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from pano4d import imageio, ply4d, views
+from pano4d import camera_paths, images, ply4d
 from pano4d.camera import Camera
 from pano4d.cli import app
 from pano4d.gaussians import Gaussians
@@ -37,22 +37,22 @@ def red_wall(n: int = 64) -> Gaussians:
 
 
 def test_parse_camera_shapes_and_errors(tmp_path: Path) -> None:
-    default = views.parse_camera(None, 64, 48)
+    default = camera_paths.parse_camera(None, 64, 48)
     assert default.position.tolist() == [0, 0, 0]
     assert default.forward.tolist() == pytest.approx([1, 0, 0])
-    pose = views.parse_camera(
+    pose = camera_paths.parse_camera(
         '{"position": [1, 2, 3], "forward": [0, 1, 0], "fov_deg": 60}', 64, 48
     )
     assert pose.position.tolist() == pytest.approx([1, 2, 3])
     assert pose.fov_deg()[0] == pytest.approx(60)
     f = tmp_path / "cam.json"
     f.write_text(json.dumps(Camera.from_fov(70, 32, 24, (0, 1, 0), (1, 1, 0)).to_dict()))
-    from_file = views.parse_camera(str(f), 32, 24)
+    from_file = camera_paths.parse_camera(str(f), 32, 24)
     assert from_file.position.tolist() == pytest.approx([0, 1, 0])
     with pytest.raises(ValueError, match="forward"):
-        views.parse_camera('{"position": [0, 0, 0]}', 64, 48)
+        camera_paths.parse_camera('{"position": [0, 0, 0]}', 64, 48)
     with pytest.raises(ValueError, match="JSON"):
-        views.parse_camera("{not json", 64, 48)
+        camera_paths.parse_camera("{not json", 64, 48)
 
 
 def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) -> None:
@@ -63,7 +63,7 @@ def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) 
         app, ["render", str(scene), "--out", str(out), "--width", "64", "--height", "48"]
     )
     assert result.exit_code == 0, result.output
-    img = imageio.read_image(out)
+    img = images.read_image(out)
     assert img.shape == (48, 64, 3)
     centre = img[20:28, 28:36]
     assert centre[..., 0].mean() > 0.9 and centre[..., 1:].mean() < 0.1
@@ -84,7 +84,7 @@ def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) 
         ],
     )
     assert back.exit_code == 0, back.output
-    assert imageio.read_image(out).max() == 0.0
+    assert images.read_image(out).max() == 0.0
 
 
 def test_render_errors_are_clear(tmp_path: Path) -> None:
@@ -146,8 +146,8 @@ def test_turntable_video_has_the_frames_and_time_advances(tmp_path: Path) -> Non
         check=True,
     )
     assert int(probe.stdout.strip()) == 4
-    cams = list(views.path_cameras("fly-through", 8, 8, 4, radius=2.0))
+    cams = list(camera_paths.path_cameras("fly-through", 8, 8, 4, radius=2.0))
     assert cams[0].position.tolist() == pytest.approx([0, 0, 0])
     assert float(torch.linalg.norm(cams[2].position)) == pytest.approx(4.0)
     with pytest.raises(ValueError, match="turntable"):
-        list(views.path_cameras("orbit", 8, 8, 4, radius=1.0))
+        list(camera_paths.path_cameras("orbit", 8, 8, 4, radius=1.0))

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pano4d import imageio, ply4d
+from pano4d import images, ply4d
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.render import render
@@ -67,7 +67,7 @@ def to_image(rgb: torch.Tensor) -> np.ndarray:
 
 def render_still(scene: Path, camera: Camera, time: int, out: Path, backend: str = "wgpu") -> None:
     g, _ = load_gaussians(scene, time)
-    imageio.write_image(out, to_image(render(g, camera, backend=backend).rgb))
+    images.write_image(out, to_image(render(g, camera, backend=backend).rgb))
 
 
 def path_cameras(
@@ -105,7 +105,7 @@ def render_path(
     radius = 0.05 * float(torch.linalg.norm(first.means, dim=-1).median()) if len(first) else 1.0
     cams = list(path_cameras(kind, width, height, frames, radius))
 
-    def images() -> Iterator[np.ndarray]:
+    def rendered() -> Iterator[np.ndarray]:
         cached: dict[int, Gaussians] = {0: first}
         for i, cam in enumerate(cams):
             t = i % num_times
@@ -114,4 +114,4 @@ def render_path(
                 cached[t] = load_gaussians(scene, t)[0]
             yield to_image(render(cached[t], cam, backend=backend).rgb)
 
-    imageio.write_video(out, images(), fps)
+    images.write_video(out, rendered(), fps)
