@@ -13,7 +13,6 @@ from pano4d.lift.initial import (
     facing_rotations,
     init_gaussians,
     init_sphere,
-    moving_mask,
     points_in_mask,
 )
 from pano4d.lift.optimize import (
@@ -24,6 +23,7 @@ from pano4d.lift.optimize import (
     pearson_loss,
     sem_alpha,
 )
+from pano4d.regions import moving_in_video
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
 
@@ -74,7 +74,7 @@ def test_dilation_wraps_the_seam_and_the_moving_mask_catches_changes() -> None:
     frames[2, 1, 5] = 0.5
     regions = torch.zeros(8, 16, dtype=torch.bool)
     regions[6, 6] = True
-    moving = moving_mask(frames, regions)
+    moving = moving_in_video(frames, regions)
     assert moving[1, 5] and moving[6, 6] and moving.sum() == 2
 
 

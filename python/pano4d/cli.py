@@ -129,8 +129,8 @@ def evaluate(
     """Measure an animation: seam, static-region, motion, flicker and loop figures."""
     from pano4d import metrics
     from pano4d.animate.pipeline import animate_folder, print_metrics
-    from pano4d.animate.regions import build_regions
     from pano4d.images import read_panorama
+    from pano4d.regions import build_regions
 
     cfg = load_scene_config(scene)
     frames = animate_folder(cfg) / "frames"

@@ -17,7 +17,6 @@ import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import numpy as np
 import yaml
 from pydantic import (
     BaseModel,
@@ -189,23 +188,7 @@ class Region(_Section):
                 return (0.0, max(0.0, v - half), float(width), min(float(height), v + half))
             return ((u - half) % width, max(0.0, v - half), (u + half) % width,
                     min(float(height), v + half))  # fmt: skip
-        raise ConfigError("a mask region has no box; use to_mask()")
-
-    def to_mask(self, width: int, height: int) -> np.ndarray:
-        """The region as a bool (height, width) mask; a pixel is in a box if its centre is."""
-        if self.mask is not None:
-            from pano4d.images import read_mask
-
-            mask = read_mask(self.mask, width, height)
-            if not mask.any():
-                raise ConfigError(f"{self.mask}: the mask has no white pixels, so nothing moves")
-            return mask
-        u0, v0, u1, v1 = self.pixel_box(width, height)
-        cu = np.arange(width) + 0.5
-        cv = np.arange(height) + 0.5
-        cols = (cu >= u0) & (cu < u1) if u0 < u1 else (cu >= u0) | (cu < u1)
-        rows = (cv >= v0) & (cv < v1)
-        return rows[:, None] & cols[None, :]
+        raise ConfigError("a mask region has no box; use pano4d.regions.region_mask()")
 
 
 class AnimateConfig(_Section):

@@ -38,14 +38,9 @@ from pano4d.gaussians import Gaussians
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.features import make_feature_model
-from pano4d.lift.initial import (
-    dilate_mask,
-    init_gaussians,
-    init_sphere,
-    moving_mask,
-    points_in_mask,
-)
+from pano4d.lift.initial import dilate_mask, init_gaussians, init_sphere, points_in_mask
 from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews, moved_camera, save_atomic
+from pano4d.regions import moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 
@@ -135,13 +130,6 @@ def _frame_suffix(cfg: SceneConfig) -> str:
 
 def _frames_complete(folder: Path, count: int, suffix: str) -> bool:
     return all((folder / f"{t:04d}{suffix}").is_file() for t in range(count))
-
-
-def _regions_mask(cfg: SceneConfig, width: int, height: int) -> torch.Tensor:
-    mask = np.zeros((height, width), dtype=bool)
-    for region in cfg.regions:
-        mask |= region.to_mask(width, height)
-    return torch.from_numpy(mask)
 
 
 def resolve_device(cfg: SceneConfig) -> torch.device:
@@ -260,9 +248,9 @@ def _context(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftCon
     knobs = cfg.resolved_preset(full_w)
     size = working_size(full_w, int(knobs["view_size"]), cfg.lift.fov_deg)
     frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
-    regions = _regions_mask(cfg, full_w, full_h)
+    regions = moving_mask(cfg, full_w, full_h)
     regions = F.interpolate(regions[None, None].float(), size=(size[1], size[0]), mode="area")
-    moving = moving_mask(frames, regions[0, 0] > 0)
+    moving = moving_in_video(frames, regions[0, 0] > 0)
     radius = max(1, round(DILATE_DEG / 360.0 * size[0]))
     device = resolve_device(cfg)
     cameras = view_layout(cfg.lift.views, cfg.lift.fov_deg, int(knobs["view_size"]))

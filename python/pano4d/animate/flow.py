@@ -4,7 +4,7 @@ After Holynski et al., "Animating Pictures with Eulerian Motion Fields" (CVPR 20
 sphere instead of the image plane:
 
 * **Motion field.** A static velocity field v(d) tangent to the sphere: each region's rigid
-  rotation Ω × d (see ``regions``; between and beyond regions Ω is filled in smoothly),
+  rotation Ω × d (see ``pano4d.regions``; between and beyond regions Ω is filled in smoothly),
   plus a small divergence-free low-frequency perturbation d × ∇ψ(d) so the texture swirls
   a little instead of sliding rigidly. Everything is a function of the 3D direction, so
   there is no seam and no pole.
@@ -35,7 +35,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from pano4d.animate.regions import Regions, angular_velocity_field, smoothstep
+from pano4d.regions import Regions, angular_velocity_field, smoothstep
 from pano4d.sphere import dir_to_equirect, equirect_directions
 
 TRACE_MAX_WIDTH = 512  # traces are computed on a grid at most this wide

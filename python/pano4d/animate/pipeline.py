@@ -33,12 +33,12 @@ import torch.nn.functional as F
 from rich.console import Console
 from rich.table import Table
 
-from pano4d.animate.regions import Regions, build_regions
 from pano4d.config import SceneConfig, config_hash
 from pano4d.fsutil import write_json_atomic
 from pano4d.images import read_image, read_panorama, write_image, write_video
 from pano4d.metrics import VideoMetrics
 from pano4d.progress import progress_bar
+from pano4d.regions import Regions, build_regions
 
 PREVIEW_MAX_WIDTH = 2048
 

@@ -28,9 +28,9 @@ import torch.nn.functional as F
 from pano4d.animate.decode import tiled_equirect
 from pano4d.animate.denoiser import PanoramicDenoiser, latent_cameras
 from pano4d.animate.noise import footprints_for_views
-from pano4d.animate.regions import active_views, blend_weight
 from pano4d.camera import Camera
 from pano4d.config import AnimateConfig, SceneConfig
+from pano4d.regions import active_views, blend_weight
 from pano4d.resample import equirect_sampler, equirect_to_perspective, sphere_sampler
 from pano4d.sphere import (
     Icosphere,

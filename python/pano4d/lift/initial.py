@@ -40,17 +40,6 @@ def dilate_mask(mask: torch.Tensor, radius: int) -> torch.Tensor:
     return F.max_pool2d(x, 2 * radius + 1, stride=1)[0, 0] > 0.5
 
 
-def moving_mask(
-    frames: torch.Tensor, regions: torch.Tensor | None, threshold: float = 1.0 / 255.0
-) -> torch.Tensor:
-    """(H, W) bool: pixels in the configured regions or changing anywhere in the video.
-
-    ``frames`` (L, H, W, 3); ``regions`` (H, W) bool or None.
-    """
-    changed = (frames - frames[:1]).abs().amax(dim=(0, 3)) > threshold
-    return changed if regions is None else changed | regions.to(changed.device)
-
-
 def points_in_mask(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """(N,) bool: whether each unit direction (N, 3) lands on a True pixel of ``mask`` (H, W)."""
     height, width = mask.shape
