@@ -92,9 +92,9 @@ device: cpu
     assert cfg.depth.path == scene / "inputs" / "depth.exr"
     assert cfg.output == tmp_path / "scenes" / "runs" / "lake"
     knobs = cfg.resolved_preset()
-    assert knobs["gaussian_iterations"] == 10
-    assert knobs["lambda_geo"] == 1
-    assert knobs["view_size"] == PRESETS["draft"]["view_size"]
+    assert knobs.gaussian_iterations == 10
+    assert knobs.lambda_geo == 1
+    assert knobs.view_size == PRESETS["draft"]["view_size"]
 
 
 def test_unknown_keys_suggest_the_close_match(scene_dir: Path) -> None:

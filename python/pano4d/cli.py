@@ -70,8 +70,8 @@ def check(
         width, _ = image_size(cfg.panorama)
     except ImageError as e:
         fail(str(e))
-    preset = cfg.resolved_preset()
-    for key, value in cfg.resolved_preset(width).items():
+    preset = cfg.resolved_preset().model_dump()
+    for key, value in cfg.resolved_preset(width).model_dump().items():
         note = f"  (the preset's {preset[key]}, capped at the panorama's pixel)"
         console.print(f"  {key} = {value}{note if value != preset[key] else ''}")
 

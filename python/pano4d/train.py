@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 
 from pano4d.camera import Camera
-from pano4d.config import SceneConfig, config_hash, load_config
+from pano4d.config import PresetKnobs, SceneConfig, config_hash, load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.lift.align import DepthAligner, FrameAlignment
@@ -171,7 +171,7 @@ class Checkpoints:
 @dataclass
 class LiftContext:
     cfg: SceneConfig
-    knobs: dict[str, Any]
+    knobs: PresetKnobs
     device: torch.device
     cameras: list[Camera]
     frames: torch.Tensor  # (L, H, W, 3) working resolution
@@ -246,14 +246,14 @@ def _context(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftCon
     first = read_image(frames_dir / f"0000{suffix}")
     full_h, full_w = first.shape[:2]
     knobs = cfg.resolved_preset(full_w)
-    size = working_size(full_w, int(knobs["view_size"]), cfg.lift.fov_deg)
+    size = working_size(full_w, knobs.view_size, cfg.lift.fov_deg)
     frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
     regions = moving_mask(cfg, full_w, full_h)
     regions = F.interpolate(regions[None, None].float(), size=(size[1], size[0]), mode="area")
     moving = moving_in_video(frames, regions[0, 0] > 0)
     radius = max(1, round(DILATE_DEG / 360.0 * size[0]))
     device = resolve_device(cfg)
-    cameras = view_layout(cfg.lift.views, cfg.lift.fov_deg, int(knobs["view_size"]))
+    cameras = view_layout(cfg.lift.views, cfg.lift.fov_deg, knobs.view_size)
     return LiftContext(
         cfg, knobs, device, cameras, frames, dilate_mask(moving, radius), full_w, render_backend
     )
@@ -283,7 +283,7 @@ def _stage_align(
     on_step: StepHook | None,
 ) -> tuple[list[FrameAlignment], DepthAligner]:
     start = time.perf_counter()
-    iterations = int(ctx.knobs["align_iterations"])
+    iterations = ctx.knobs.align_iterations
     aligner = DepthAligner(ctx.cameras, iterations=iterations, device=ctx.device)
     moving_points = points_in_mask(aligner.ico.points, ctx.moving)
     state = ckpt.load("align") or {"frames": []}
@@ -315,14 +315,14 @@ class Split:
 def _initial_sets(
     ctx: LiftContext, depths: list[torch.Tensor]
 ) -> tuple[Gaussians, Gaussians, Split]:
-    stride = int(ctx.knobs["init_stride"])
+    stride = ctx.knobs.init_stride
     ico = init_sphere(ctx.full_width, stride)
-    while len(ico) > int(ctx.knobs["max_gaussians"]):  # keep the initial set within budget
+    while len(ico) > ctx.knobs.max_gaussians:  # keep the initial set within budget
         stride += 1
         ico = init_sphere(ctx.full_width, stride)
     points = ico.points
     dynamic = points_in_mask(points, ctx.moving)
-    degree = int(ctx.knobs["sh_degree"])
+    degree = ctx.knobs.sh_degree
     frame0 = ctx.frames[0].to(ctx.device)
     depth0 = depths[0].to(ctx.device)
     static = init_gaussians(points[~dynamic], ico.spacing_rad, depth0, frame0, degree)
@@ -356,10 +356,10 @@ def _knobs(ctx: LiftContext, iterations: int, budget: int) -> Knobs:
     k = ctx.knobs
     return Knobs(
         iterations=iterations,
-        lambda_temporal=float(k["lambda_temporal"]),
-        lambda_geo=float(k["lambda_geo"]),
-        lambda_sem=float(k["lambda_sem"]),
-        densify=bool(k["densify"]),
+        lambda_temporal=k.lambda_temporal,
+        lambda_geo=k.lambda_geo,
+        lambda_sem=k.lambda_sem,
+        densify=k.densify,
         max_gaussians=max(1, budget),
         densify_every=max(10, iterations // 10),
         sem_scale=ctx.median_depth,
@@ -401,14 +401,14 @@ def _stage_static(
         ctx.timings["static"] = state["seconds"]
         ctx.timings["static_per_step"] = state["per_step"]
         return Gaussians.from_numpy(state["done"], ctx.device)
-    iterations = int(ctx.knobs["gaussian_iterations"])
+    iterations = ctx.knobs.gaussian_iterations
     views = _views_of_frame(
         ctx, 0, view_depth0, lambda c: (_moving_in_view(ctx, c) < 0.5).to(torch.float32)
     )
     trainer = GaussianTrainer(
         init,
         views,
-        _knobs(ctx, iterations, int(ctx.knobs["max_gaussians"])),
+        _knobs(ctx, iterations, ctx.knobs.max_gaussians),
         ctx.render,
         features=make_feature_model(ctx.cfg.features, ctx.device),
         seed=ctx.cfg.seed,
@@ -451,8 +451,8 @@ def _stage_dynamic(
     if len(init) == 0 or not cams:
         ctx.timings["dynamic"] = 0.0
         return [init.detach() for _ in range(total)]
-    full = int(ctx.knobs["gaussian_iterations"])
-    budget = int(ctx.knobs["max_gaussians"]) - len(static)
+    full = ctx.knobs.gaussian_iterations
+    budget = ctx.knobs.max_gaussians - len(static)
     features = make_feature_model(ctx.cfg.features, ctx.device)
     start = time.perf_counter()
 
@@ -508,13 +508,13 @@ def _scene(ctx: LiftContext, static: Gaussians, dynamic: list[Gaussians], split:
             "params": {
                 "views": len(ctx.cameras),
                 "fov_deg": ctx.cfg.lift.fov_deg,
-                "view_size": int(ctx.knobs["view_size"]),
+                "view_size": ctx.knobs.view_size,
             },
         },
         provenance={"tool_version": __version__, "config_hash": config_hash(ctx.cfg)},
         extra={
             "preset": ctx.cfg.preset,
-            "knobs": ctx.knobs,
+            "knobs": ctx.knobs.model_dump(),
             "median_depth": ctx.median_depth,
             "init_points": split.points,
         },
@@ -630,7 +630,7 @@ def _export(
     scene = _scene(ctx, static, dynamic, split)
     ply4d.write(out / "scene.ply4d", scene)
     render = ctx.render
-    size = int(ctx.knobs["view_size"])
+    size = ctx.knobs.view_size
     preview_size = (2 * size, (2 * size * 9 // 16) // 2 * 2)  # 16:9, as wide as two views
     cams = turntable_cameras(preview_size, ctx.median_depth, PREVIEW_FRAMES)
     on_device = [scene.at(t).to(ctx.device) for t in range(scene.num_times)]
@@ -686,7 +686,7 @@ def _metrics(
     whole = sum(n_static + n for n in n_dynamic)  # every timestamp stored whole
     size = path.stat().st_size
     bytes_per = size / max(stored, 1)
-    iters = int(ctx.knobs["gaussian_iterations"])
+    iters = ctx.knobs.gaussian_iterations
     step = ctx.timings.get("full_scene_step", ctx.timings.get("static_per_step", 0.0))
     whole_seconds = len(scene.dynamic) * iters * step
     spent = ctx.timings.get("static", 0.0) + ctx.timings.get("dynamic", 0.0)
@@ -694,7 +694,7 @@ def _metrics(
     timings = {k: v for k, v in ctx.timings.items() if k not in helpers}
     return {
         "preset": ctx.cfg.preset,
-        "knobs": ctx.knobs,
+        "knobs": ctx.knobs.model_dump(),
         "config_hash": config_hash(ctx.cfg),
         "working_size": [int(ctx.frames.shape[2]), int(ctx.frames.shape[1])],
         "timings_s": timings,
