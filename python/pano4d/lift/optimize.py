@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
 import torch
@@ -329,10 +328,3 @@ class GaussianTrainer:
         self.grad_count = state["grad_count"].to(self.device)
         self.last_loss = float(state["last_loss"])
 
-
-def save_atomic(path: Path, payload: dict[str, Any]) -> None:
-    """torch.save through a temporary file and a rename."""
-    from pano4d.fsutil import atomic_path
-
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)

@@ -4,13 +4,13 @@ scene.yaml ready to train, the true animation and the ground-truth views."""
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from pano4d.fsutil import write_json_atomic, write_text_atomic
 from pano4d.images import write_image
+from pano4d.progress import Bars, Task
 from pano4d.synth.scene import SynthScene, make_scene
 
 SCENE_YAML = """\
@@ -35,7 +35,7 @@ def write_scene(
     out_dir: str | Path,
     scene: SynthScene,
     seed: int | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Task | None = None,
 ) -> Path:
     """Write the file set of ``scene`` into ``out_dir`` (docs/design.md, "Files a run
     writes"); returns scene.yaml's path.
@@ -45,7 +45,7 @@ def write_scene(
     """
     if seed is not None and seed != scene.seed:
         raise ValueError(f"scene was made with seed {scene.seed}, not {seed}")
-    report = progress or (lambda _message: None)
+    report = (progress or Task()).advance
     out = Path(out_dir)
     gt = out / "gt"
     for folder in (gt / "frames", gt / "views"):
@@ -92,14 +92,8 @@ def write_scene(
 
 def run_synth(out: Path, width: int, height: int, frames: int, seed: int, views: int = 8) -> Path:
     """``pano4d synth``: make the scene and write it with a progress bar; returns scene.yaml."""
-    from rich.progress import Progress
-
     steps = 3 + 1 + frames + 1  # make_scene stages, panorama files, frames, views
-    with Progress(transient=True) as bar:
-        task = bar.add_task(f"synth {width}x{height}, {frames} frames", total=steps)
-
-        def advance(message: str) -> None:
-            bar.update(task, advance=1, description=message)
-
-        scene = make_scene(seed, width, height, frames, views=views, progress=advance)
-        return write_scene(out, scene, progress=advance)
+    with Bars(transient=True) as bars:
+        task = bars.task(f"synth {width}x{height}, {frames} frames", steps)
+        scene = make_scene(seed, width, height, frames, views=views, progress=task)
+        return write_scene(out, scene, progress=task)

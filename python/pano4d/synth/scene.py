@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from pano4d.progress import Task
 from pano4d.synth.landscape import CAMERA_HEIGHT, Landscape
 from pano4d.synth.views import SynthView, make_views, render_panorama
 from pano4d.synth.world import Hits, World
@@ -81,17 +82,17 @@ def make_scene(
     view_size: int = 256,
     camera_height: float = CAMERA_HEIGHT,
     kind: str = "landscape",
-    progress: Callable[[str], None] | None = None,
+    progress: Task | None = None,
 ) -> SynthScene:
     """Render the synthetic scene of ``seed``: panorama, depth, mask, frames and views.
 
     Deterministic: the same arguments give bit-identical tensors. The frames are rendered
-    lazily (see ``SynthFrames``). ``kind`` names the world in SCENE_KINDS. ``progress`` is
-    called with a message after each stage.
+    lazily (see ``SynthFrames``). ``kind`` names the world in SCENE_KINDS. ``progress``
+    advances one step per stage, saying what was done.
     """
     if views < 0 or view_size < 1:
         raise ValueError(f"need views >= 0 and view_size >= 1, got {views} and {view_size}")
-    report = progress or (lambda _message: None)
+    report = (progress or Task()).advance
     if kind not in SCENE_KINDS:
         raise ValueError(f"unknown scene kind {kind!r}; known: {', '.join(SCENE_KINDS)}")
     world = SCENE_KINDS[kind](seed, frames, camera_height)
