@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from pano4d.camera import Camera
 from pano4d.config import ConfigError, Motion, Region, SceneConfig
 from pano4d.images import read_mask
+from pano4d.smoothstep import smoothstep
 from pano4d.sphere import dir_to_equirect, equirect_directions, equirect_to_dir, views_seeing
 
 # Views are chosen on a mask no wider than this (any-pooled, so nothing is lost).
@@ -232,19 +233,13 @@ def inside_distance_px(mask: torch.Tensor, max_px: float) -> torch.Tensor:
     return torch.where(mask, distance, torch.zeros_like(distance))
 
 
-def smoothstep(x: torch.Tensor) -> torch.Tensor:
-    """3x² − 2x³ on x clamped to [0, 1]: a ramp with zero slope at both ends."""
-    x = x.clamp(0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def blend_weight(mask: torch.Tensor, border_px: float) -> torch.Tensor:
     """Soft weight (H, W) float32 of the animation: 0 outside the mask, rising smoothly
     over ``border_px`` equator pixels inside it to 1 (a hard 0/1 mask for border 0)."""
     if border_px <= 0:
         return mask.to(torch.float32)
     ramp = float(border_px) + 1.0
-    return smoothstep(inside_distance_px(mask, ramp) / ramp).to(torch.float32)
+    return smoothstep(0.0, ramp, inside_distance_px(mask, ramp)).to(torch.float32)
 
 
 # --- motion ------------------------------------------------------------------------------

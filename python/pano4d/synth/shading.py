@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import torch
 
-from pano4d.synth.textures import TiledNoise, lerp, normalize, rgb, sample, smoothstep, wrap
+from pano4d.smoothstep import smoothstep
+from pano4d.synth.textures import TiledNoise, lerp, normalize, rgb, sample, wrap
 
 # The cloud field repeats CLOUD_REPEATS times around the sky; over L frames it drifts by one
 # repeat, so the drift loops.

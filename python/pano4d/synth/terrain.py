@@ -15,7 +15,8 @@ import math
 import torch
 import torch.nn.functional as F
 
-from pano4d.synth.textures import fft_noise, normalize, sample, smoothstep
+from pano4d.smoothstep import smoothstep
+from pano4d.synth.textures import fft_noise, normalize, sample
 
 # Terrain layout, metres. The grid spans [-TERRAIN_EXTENT, TERRAIN_EXTENT]^2.
 TERRAIN_EXTENT = 600.0

@@ -12,11 +12,6 @@ import torch
 import torch.nn.functional as F
 
 
-def smoothstep(lo: float | torch.Tensor, hi: float | torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    s = ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
-
-
 def rgb(*values: float) -> torch.Tensor:
     return torch.tensor(values, dtype=torch.float32)
 
