@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 from pathlib import Path
@@ -14,6 +15,7 @@ from pano4d import camera_paths, images, ply4d
 from pano4d.camera import Camera
 from pano4d.cli import app
 from pano4d.gaussians import Gaussians
+from pano4d.sphere import dir_to_equirect
 
 runner = CliRunner()
 
@@ -151,3 +153,22 @@ def test_turntable_video_has_the_frames_and_time_advances(tmp_path: Path) -> Non
     assert float(torch.linalg.norm(cams[2].position)) == pytest.approx(4.0)
     with pytest.raises(ValueError, match="turntable"):
         list(camera_paths.path_cameras("orbit", 8, 8, 4, radius=1.0))
+
+
+def test_turntable_turns_right_and_its_orbit_stands_to_the_left() -> None:
+    """One turntable for `pano4d render --path turntable` and train's preview: the view's
+    centre sweeps the panorama left to right (increasing u: the image's right is the
+    viewer's right), and on an orbit each camera stands to the left of where it looks."""
+    cams = camera_paths.turntable(32, 24, 8)
+    forwards = torch.stack([c.forward for c in cams])
+    assert torch.allclose(forwards[:, 2], torch.zeros(8, dtype=forwards.dtype), atol=1e-12)
+    u, _ = dir_to_equirect(forwards, 360, 180)
+    assert torch.allclose(torch.diff(u) % 360, torch.full((7,), 45.0, dtype=u.dtype))
+    # Turning right: each camera's right (its x axis) leans towards where the next one looks.
+    for cam, after in itertools.pairwise(cams):
+        assert float(cam.R[0] @ after.forward) > 0.5
+    orbit = camera_paths.turntable(32, 24, 8, orbit=2.0)
+    for cam, still in zip(orbit, cams, strict=True):
+        assert torch.allclose(cam.forward, still.forward)
+        assert float(torch.linalg.norm(cam.position)) == pytest.approx(2.0)
+        assert float(cam.R[0] @ cam.position) == pytest.approx(-2.0)  # left of its view

@@ -10,7 +10,6 @@ storing the static part once saved, novel-view PSNR/SSIM).
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ import torch
 
 from pano4d import __version__, ply4d
 from pano4d.camera import Camera
+from pano4d.camera_paths import turntable
 from pano4d.config import config_hash
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
@@ -50,8 +50,9 @@ def export(lifted: Lifted) -> dict[str, Any]:
     ply4d.write(out / "scene.ply4d", scene)
     render = inputs.render
     size = inputs.knobs.view_size
-    preview_size = (2 * size, (2 * size * 9 // 16) // 2 * 2)  # 16:9, as wide as two views
-    cams = turntable_cameras(preview_size, alignment.median_depth, PREVIEW_FRAMES)
+    w, h = 2 * size, (2 * size * 9 // 16) // 2 * 2  # 16:9, as wide as two views
+    orbit = PREVIEW_ORBIT * alignment.median_depth
+    cams = turntable(w, h, PREVIEW_FRAMES) + turntable(w, h, PREVIEW_FRAMES, orbit)
     on_device = [scene.at(t).to(inputs.device) for t in range(scene.num_times)]
     with torch.no_grad():
         frames = [
@@ -125,24 +126,6 @@ def scene4d(
             "init_points": initial.points,
         },
     )
-
-
-def turntable_cameras(size: tuple[int, int], median_depth: float, count: int) -> list[Camera]:
-    """``count`` cameras turning 360° at the origin, then ``count`` on a small orbit looking out."""
-    w, h = size
-    out = []
-    radius = PREVIEW_ORBIT * median_depth
-    for orbit in (0.0, radius):
-        for i in range(count):
-            yaw = 2 * math.pi * i / count
-            forward = (math.cos(yaw), math.sin(yaw), 0.0)
-            position = (
-                orbit * math.cos(yaw + math.pi / 2),
-                orbit * math.sin(yaw + math.pi / 2),
-                0.0,
-            )
-            out.append(Camera.from_fov(90.0, w, h, position, forward))
-    return out
 
 
 def read_gt_views(panorama: Path) -> list[dict[str, Any]]:

@@ -327,4 +327,3 @@ class GaussianTrainer:
         self.grad_accum = state["grad_accum"].to(self.device)
         self.grad_count = state["grad_count"].to(self.device)
         self.last_loss = float(state["last_loss"])
-
