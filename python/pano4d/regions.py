@@ -35,9 +35,11 @@ from pano4d.sphere import dir_to_equirect, equirect_directions, equirect_to_dir,
 
 # Views are chosen on a mask no wider than this (any-pooled, so nothing is lost).
 ACTIVE_VIEWS_MAX_WIDTH = 1024
-# Default widening of the region before choosing the views to denoise: the denoiser sees
-# a little context around what moves, so a view touching only that margin still matters.
-ACTIVE_VIEWS_DILATION_DEG = 2.0
+# The margin around what moves, degrees of arc, in both phases: the animating phase
+# denoises the views that see it (the denoiser needs a little context around what moves,
+# so a view touching only the margin still matters), the lifting phase gives it dynamic
+# Gaussians (an animator may blur a little beyond the region's edge).
+MARGIN_DEG = 2.0
 
 
 class RegionError(ConfigError):
@@ -226,6 +228,12 @@ def dilate(mask: torch.Tensor, radius_px: float) -> torch.Tensor:
     return sphere_distance_px(mask, radius_px + 1.0) <= radius_px
 
 
+def grow(mask: torch.Tensor, degrees: float = MARGIN_DEG) -> torch.Tensor:
+    """The equirect mask (H, W) grown by ``degrees`` of arc (``dilate``): what either phase
+    treats as moving around a region."""
+    return dilate(mask, degrees * mask.shape[1] / 360.0)
+
+
 def inside_distance_px(mask: torch.Tensor, max_px: float) -> torch.Tensor:
     """For pixels in the mask, the angular distance to the nearest pixel outside (≥ 1 px,
     capped at ``max_px``); 0 outside the mask."""
@@ -292,7 +300,7 @@ def _coarse_directions(mask: torch.Tensor) -> torch.Tensor:
 
 # --- views -------------------------------------------------------------------------------
 def active_views(
-    cameras: list[Camera], mask: torch.Tensor, dilation_deg: float = ACTIVE_VIEWS_DILATION_DEG
+    cameras: list[Camera], mask: torch.Tensor, dilation_deg: float = MARGIN_DEG
 ) -> list[int]:
     """Indices of the cameras that see some of the region grown by ``dilation_deg``.
 
@@ -311,7 +319,7 @@ def active_views(
         step *= 2
     coarse = F.max_pool2d(mask[None, None].float(), step)[0, 0] > 0
     coarse_h, coarse_w = coarse.shape
-    grown = dilate(coarse, dilation_deg * coarse_w / 360.0)
+    grown = grow(coarse, dilation_deg)
     # Corners (H+1, W+1) touching a covered and an uncovered pixel (columns wrap).
     padded = torch.cat([grown[:, -1:], grown], dim=1).float()
     padded = F.pad(padded[None, None], (0, 0, 1, 1), mode="replicate")

@@ -43,14 +43,12 @@ from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.features import make_feature_model
-from pano4d.lift.initial import dilate_mask, init_gaussians, init_sphere, points_in_mask
+from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
 from pano4d.lift.optimize import FeatureModel, GaussianTrainer, Knobs, RenderFn, TrainViews
 from pano4d.progress import Bars
-from pano4d.regions import moving_in_video, moving_mask
+from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
-
-DILATE_DEG = 2.0  # margin around the moving region, degrees of arc
 
 # on_step(stage, step): called after every optimisation step of the align, static and
 # dynamic stages (tests use it to interrupt a run at a known point).
@@ -115,26 +113,33 @@ def frame_suffix(cfg: SceneConfig) -> str:
     return ".exr" if Path(cfg.panorama).suffix.lower() == ".exr" else ".png"
 
 
+def moving_region(
+    cfg: SceneConfig, frames: torch.Tensor, full_size: tuple[int, int]
+) -> torch.Tensor:
+    """(H, W) bool at the resolution of ``frames`` (L, H, W, 3): the configured regions
+    (masks made at the panorama's ``full_size`` (W, H)) and every pixel that changes in the
+    video, grown by regions.MARGIN_DEG on the sphere, as the animating phase grows them."""
+    height, width = frames.shape[1:3]
+    regions = moving_mask(cfg, *full_size)
+    regions = F.interpolate(regions[None, None].float(), size=(height, width), mode="area")
+    return grow(moving_in_video(frames, regions[0, 0] > 0))
+
+
 def prepare(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftInputs:
-    """The frames at the working resolution and what moves in them: the configured regions
-    and every pixel that changes, grown by DILATE_DEG."""
+    """The frames at the working resolution and what moves in them (``moving_region``)."""
     suffix = frame_suffix(cfg)
     first = read_image(frames_dir / f"0000{suffix}")
     full_h, full_w = first.shape[:2]
     knobs = cfg.resolved_preset(full_w)
     size = working_size(full_w, knobs.view_size, cfg.lift.fov_deg)
     frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
-    regions = moving_mask(cfg, full_w, full_h)
-    regions = F.interpolate(regions[None, None].float(), size=(size[1], size[0]), mode="area")
-    moving = moving_in_video(frames, regions[0, 0] > 0)
-    radius = max(1, round(DILATE_DEG / 360.0 * size[0]))
     return LiftInputs(
         cfg=cfg,
         knobs=knobs,
         device=resolve_device(cfg.device),
         cameras=view_layout(cfg.lift.views, cfg.lift.fov_deg, knobs.view_size),
         frames=frames,
-        moving=dilate_mask(moving, radius),
+        moving=moving_region(cfg, frames, (full_w, full_h)),
         full_width=full_w,
         render_backend=render_backend,
     )
