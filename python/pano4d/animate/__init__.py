@@ -1,4 +1,4 @@
-"""Animating phase: a static panorama becomes a looping panoramic video (DESIGN.md).
+"""Animating phase: a static panorama becomes a looping panoramic video (docs/design.md).
 
 ``pipeline.run_animate(cfg)`` runs the phase (``pano4d animate``) on the masks, soft blend and
 motion of ``pano4d.regions``; ``flow`` is the embedded animator

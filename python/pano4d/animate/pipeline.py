@@ -3,7 +3,7 @@
 Reads the panorama and the regions, runs the configured backend (``flow``: the embedded
 cinemagraph animator; ``svd``: the Panoramic Denoiser with a diffusers model), copies the
 input into every pixel outside the soft region blend so static pixels are bit-identical,
-and writes (DESIGN.md, "Files a run writes")::
+and writes (docs/design.md, "Files a run writes")::
 
     output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
     output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
