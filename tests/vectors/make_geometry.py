@@ -79,7 +79,7 @@ def main() -> None:
 
     layouts = [{"n": n, "directions": sphere.view_directions(n).tolist()} for n in (20, 7, 1)]
     data = {
-        "about": "Shared geometry vectors (docs/design.md conventions); written by make_geometry.py",
+        "about": "Shared geometry vectors (docs/design.md); written by make_geometry.py",
         "tolerance": 1e-9,
         "equirect_to_dir": equirect,
         "dir_to_equirect": dir_to_equirect,
