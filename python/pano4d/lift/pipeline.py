@@ -45,7 +45,7 @@ from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
 from pano4d.lift.optimize import FeatureModel, GaussianTrainer, Knobs, RenderFn, TrainViews
-from pano4d.progress import Bars
+from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
@@ -194,7 +194,7 @@ def align_depth(
         total = iterations if t == 0 else aligner.warm_iterations
         task = bars.task(f"align frame {t}", total)
 
-        def step(i: int, n: int, loss: float, _task: Any = task) -> None:
+        def step(i: int, n: int, loss: float, _task: Task = task) -> None:
             _task.update(i + 1, loss=loss)
             if on_step is not None:
                 on_step("align", i)
