@@ -58,8 +58,8 @@ def collect_scenes(arguments: Sequence[Path]) -> list[Path]:
     """The scene.yaml files the arguments name, in order, each once.
 
     An argument is a scene file (``.yaml`` / ``.yml``), a folder (every scene file below
-    it, sorted), or a list file: one scene file or folder a line, relative to the list's
-    folder, with blank lines and ``#`` comments ignored.
+    it, sorted; hidden folders left out), or a list file: one scene file or folder a line,
+    relative to the list's folder, with blank lines and ``#`` comments ignored.
     """
     found: list[Path] = []
 
@@ -68,7 +68,11 @@ def collect_scenes(arguments: Sequence[Path]) -> list[Path]:
             raise BatchError(f"{where}: {path} not found")
         if path.is_dir():
             inside = sorted(
-                p for p in path.rglob("*") if p.suffix in SCENE_SUFFIXES and p.is_file()
+                p
+                for p in path.rglob("*")
+                if p.suffix in SCENE_SUFFIXES
+                and p.is_file()
+                and not any(part.startswith(".") for part in p.relative_to(path).parts)
             )
             if not inside:
                 raise BatchError(f"{where}: {path} holds no .yaml scene files")
@@ -346,6 +350,8 @@ def run_batch(
     console = console or Console(stderr=True)
     started = time.time()
     ray = require_ray()
+    if backend not in ("wgpu", "torch"):
+        raise BatchError(f"--backend must be wgpu or torch, got {backend!r}")
     if cpus_per_scene <= 0 or gpus_per_scene < 0:
         raise BatchError(
             f"--cpus-per-scene must be > 0 and --gpus-per-scene ≥ 0, got {cpus_per_scene} "
@@ -376,10 +382,15 @@ def run_batch(
 
     resources: dict[str, Any] = {"address": address or "local"}
     ray_init_s = None
-    if to_run:
-        ray_init_s, resources = _run_on_ray(
-            ray, rows, to_run, address, gpus_per_scene, cpus_per_scene, backend, console
-        )
+    try:
+        if to_run:
+            ray_init_s, resources = _run_on_ray(
+                ray, rows, to_run, address, gpus_per_scene, cpus_per_scene, backend, console
+            )
+    except KeyboardInterrupt:  # what finished is recorded; a rerun picks up the rest
+        partial = BatchReport(rows, time.time() - started, resources, None)
+        write_json_atomic(report, partial.to_dict())
+        raise
     result = BatchReport(rows, time.time() - started, resources, ray_init_s)
     write_json_atomic(report, result.to_dict())
     return result
@@ -398,6 +409,8 @@ def _run_on_ray(
     """Start (or join) Ray, run the scenes ``to_run``, fill their rows."""
     import logging
 
+    if address:
+        _check_reachable(address)
     init_start = time.perf_counter()
     ray.init(
         address=address or "local",
@@ -414,13 +427,33 @@ def _run_on_ray(
             "per_scene": {"CPU": cpus_per_scene, "GPU": gpus},
         }
         board = ray.remote(num_cpus=0)(StageBoard).remote()
-        task = ray.remote(train_scene).options(
-            num_cpus=cpus_per_scene, num_gpus=gpus, max_retries=MAX_RETRIES
-        )
+        # A GPU task gets a fresh worker (max_calls=1): a reused one would keep its CUDA
+        # context on the GPU of its previous task, and hold that task's cached memory.
+        task = ray.remote(
+            num_cpus=cpus_per_scene,
+            num_gpus=gpus,
+            max_calls=1 if gpus > 0 else 0,
+            max_retries=MAX_RETRIES,
+        )(train_scene)
         _drive(ray, task, board, rows, to_run, backend, console)
     finally:
         ray.shutdown()
     return init_s, resources
+
+
+def _check_reachable(address: str) -> None:
+    """A HOST:PORT address that refuses connections is bad input, said at once: Ray itself
+    would retry for minutes. (``auto`` and ``ray://`` addresses are left to Ray.)"""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or "://" in address:
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=10).close()
+    except OSError as error:
+        raise BatchError(
+            f"--address {address}: no Ray cluster answers there ({error}); start one with "
+            "`ray start --head` on that machine"
+        ) from None
 
 
 def _placeable(ray: Any, cpus: float, gpus: float, console: Console) -> float:
@@ -428,14 +461,13 @@ def _placeable(ray: Any, cpus: float, gpus: float, console: Console) -> float:
     BatchError when no live node could ever run one scene."""
     nodes = [n["Resources"] for n in ray.nodes() if n.get("Alive")]
     if gpus > 0 and not any(n.get("GPU", 0) > 0 for n in nodes):
-        console.print(f"no GPU in the Ray cluster: one scene per {cpus:g} CPU (lavapipe)")
+        console.print(f"no GPU in the Ray cluster: one scene per {cpus:g} CPU(s), CPU adapter")
         gpus = 0.0
     if not any(n.get("CPU", 0) >= cpus and n.get("GPU", 0) >= gpus for n in nodes):
-        largest = max((f"{n.get('CPU', 0):g} CPUs, {n.get('GPU', 0):g} GPUs" for n in nodes),
-                      default="none")  # fmt: skip
+        sizes = sorted({f"{n.get('CPU', 0):g} CPUs + {n.get('GPU', 0):g} GPUs" for n in nodes})
         raise BatchError(
             f"no node of the Ray cluster has {cpus:g} CPU(s) and {gpus:g} GPU(s) for one scene "
-            f"(nodes: {largest}); lower --cpus-per-scene / --gpus-per-scene"
+            f"(its nodes: {', '.join(sizes) or 'none'}); lower --cpus-per-scene / --gpus-per-scene"
         )
     return gpus
 
@@ -526,7 +558,7 @@ def batch_table(report: BatchReport) -> Table:
     """Every scene: status, seconds per phase (from its metrics.json), the task's wall time,
     Gaussians stored, PSNR of the ground-truth views, and the error of a failed scene."""
     table = Table(
-        title=f"pano4d batch: {len(report.scenes)} scenes in {_seconds(report.wall_s)}",
+        title=f"pano4d batch: {_count(len(report.scenes), 'scene')} in {_seconds(report.wall_s)}",
         box=box.SIMPLE_HEAD,
         padding=(0, 1),
     )
@@ -555,6 +587,10 @@ def batch_table(report: BatchReport) -> Table:
             Text(note),
         )
     return table
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _seconds(value: float | None) -> str:

@@ -259,7 +259,8 @@ def batch(
     except BatchError as e:
         fail(str(e))
     # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
-    console.print(batch_table(result), width=None if console.is_terminal else 120)
+    table_console = console if console.is_terminal else Console(stderr=True, width=120)
+    table_console.print(batch_table(result))
     console.print(f"wrote {report}")
     if not result.ok:
         raise typer.Exit(code=1)
