@@ -259,7 +259,7 @@ def batch(
     except BatchError as e:
         fail(str(e))
     # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
-    table_console = console if console.is_terminal else Console(stderr=True, width=120)
+    table_console = console if console.is_terminal else Console(stderr=True, width=160)
     table_console.print(batch_table(result))
     console.print(f"wrote {report}")
     if not result.ok:
