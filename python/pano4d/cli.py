@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 app = typer.Typer(
     name="pano4d",
@@ -25,7 +26,7 @@ console = Console(stderr=True)
 
 def fail(message: str) -> None:
     """Print a clear error (no traceback) and exit with status 2."""
-    console.print(f"[bold red]error:[/] {message}", highlight=False)
+    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
     raise typer.Exit(code=2)
 
 
@@ -221,6 +222,48 @@ def train(
     metrics = run_train(cfg, render_backend=backend)
     console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
     console.print_json(data=metrics)
+
+
+@app.command()
+def batch(
+    scenes: Annotated[
+        list[Path],
+        typer.Argument(help="scene.yaml files, folders of them, or list files (one a line)."),
+    ],
+    address: Annotated[
+        str | None,
+        typer.Option(
+            help="Join this Ray cluster (`ray start --head` there; `auto`: this machine's). "
+            "Default: a local Ray instance for this batch."
+        ),
+    ] = None,
+    gpus_per_scene: Annotated[
+        float, typer.Option(help="GPUs per scene; with no GPU in the cluster, CPU slots.")
+    ] = 1.0,
+    cpus_per_scene: Annotated[float, typer.Option(help="CPUs per scene.")] = 1.0,
+    backend: Annotated[str, typer.Option(help="Rasteriser: wgpu | torch.")] = "wgpu",
+    report: Annotated[Path, typer.Option(help="Where to write the table as JSON.")] = Path(
+        "batch.json"
+    ),
+) -> None:
+    """Train many scenes, one Ray task each; rerun to resume. Exit 0 only if all succeed.
+
+    Finished scenes are skipped, a scene killed half-way resumes from its checkpoints, a
+    failed scene does not stop the others. Needs Ray: pip install 'pano4d[cluster]'."""
+    from pano4d.batch import BatchError, batch_table, run_batch
+
+    try:
+        result = run_batch(
+            scenes, report, address, gpus_per_scene, cpus_per_scene, backend, console
+        )
+    except BatchError as e:
+        fail(str(e))
+    # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
+    table_console = console if console.is_terminal else Console(stderr=True, width=160)
+    table_console.print(batch_table(result))
+    console.print(f"wrote {report}")
+    if not result.ok:
+        raise typer.Exit(code=1)
 
 
 @app.command()
