@@ -22,11 +22,10 @@ import torch
 
 from pano4d.synth.objects import OBJECT_COLOURS, OBJECT_KINDS, SceneObject
 from pano4d.synth.shading import (
-    CLOUD_LOG_RHO,
     CLOUD_REPEATS,
-    CLOUD_TEXELS,
     Sky,
     Water,
+    cloud_texture,
     fog,
     ground_albedo,
     lighting,
@@ -76,10 +75,7 @@ class Landscape:
         self.terrain = Terrain(gen, self.camera_height)
         detail = torch.stack([fft_noise(gen, 512, 512, e, largest=128.0) for e in (1.2, 0.9)])
         self.detail = TiledNoise(periodic(detail))
-        rows = round(
-            (CLOUD_LOG_RHO[1] - CLOUD_LOG_RHO[0]) / (2 * math.pi / CLOUD_REPEATS) * CLOUD_TEXELS
-        )
-        clouds = periodic(fft_noise(gen, rows, CLOUD_TEXELS, 1.75, largest=CLOUD_TEXELS / 2)[None])
+        clouds = cloud_texture(gen)
 
         # Lake: an ellipse on the meadow with a noisy shore, its long axis pointing away from
         # the camera, which stands a few metres from the water.
