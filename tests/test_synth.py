@@ -171,13 +171,18 @@ def test_frames_loop(scene: synth.SynthScene) -> None:
 
 def test_seam_and_poles_are_continuous(scene: synth.SynthScene) -> None:
     pano, depth = scene.panorama, scene.depth
-    # Across the 0°/360° seam the image changes like between any two neighbouring columns.
-    steps = (pano[:, 1:] - pano[:, :-1]).abs().mean(dim=(0, 2))
-    seam = float((pano[:, 0] - pano[:, -1]).abs().mean())
-    assert seam <= 2.0 * float(steps.quantile(0.9))
-    depth_steps = (depth[:, 1:] / depth[:, :-1]).log().abs().mean(dim=0)
-    depth_seam = float((depth[:, 0] / depth[:, -1]).log().abs().mean())
-    assert depth_seam <= 2.0 * float(depth_steps.quantile(0.9))
+
+    # Across the 0°/360° seam the image changes as between any two neighbouring columns. A
+    # row "jumps" between two columns when its step there is well above the steps either
+    # side; the share of rows that jump at the seam is no larger than at most boundaries.
+    def jump_share(image: torch.Tensor) -> torch.Tensor:  # per column boundary c-1 | c
+        step = (image - image.roll(1, dims=1)).abs().reshape(HEIGHT, WIDTH, -1).amax(-1)
+        beside = torch.maximum(step.roll(1, dims=1), step.roll(-1, dims=1))
+        return (step > 2 * beside + 0.01).float().mean(dim=0)
+
+    for image in (pano, depth.log()):
+        share = jump_share(image)
+        assert float(share[0]) <= float(share.quantile(0.95))
     # The top and bottom rows each go round a small circle about the pole (a few centimetres
     # across on the floor or ground): neighbours on it, the seam's pair included, are half a
     # millimetre apart, and textures filtered over a pixel of a 1024-wide panorama (~1 cm)
@@ -261,7 +266,7 @@ def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
     assert (torch.from_numpy(frame) - scene.frames[2]).abs().max() <= 0.5 / 255 + 1e-6
 
     data = json.loads((out / "gt" / "views.json").read_text())
-    assert data["seed"] == SEED and data["frames"] == FRAMES
+    assert data["seed"] == SEED and data["frames"] == FRAMES and data["kind"] == scene.kind
     assert data["scene"] == json.loads(json.dumps(scene.world.metadata()))
     for entry, view in zip(data["views"], scene.views, strict=True):
         camera = Camera.from_dict(entry)

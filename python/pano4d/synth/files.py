@@ -66,6 +66,7 @@ def write_scene(
     write_json_atomic(
         gt / "views.json",
         {
+            "kind": scene.kind,
             "seed": scene.seed,
             "frames": len(scene.frames),
             "scene": scene.world.metadata(),

@@ -288,7 +288,6 @@ class Room:
 
     def metadata(self) -> dict[str, Any]:
         return {
-            "kind": "room",
             "seed": self.seed,
             "frames": self.frames,
             "camera_height": self.camera_height,
