@@ -12,6 +12,12 @@ import pytest
 
 from pano4d.images import read_image
 from pano4d.lift.diagnosis import (
+    MARGIN_B,
+    MARGIN_L,
+    MARGIN_R,
+    MARGIN_T,
+    PANEL_H,
+    PANEL_W,
     TERMS,
     DensifyStats,
     TrainLog,
@@ -50,9 +56,12 @@ def test_the_plot_draws_one_curve_per_active_term(tmp_path: Path) -> None:
     assert drawn == [["total", "l1", "d_ssim", "geo"], ["total", "l1", "d_ssim", "temporal", "geo"]]
     image = read_image(path)
     assert image.shape == (640, 960, 3)
-    # Every drawn term's colour is on the plot, in its panel; an absent term's is not.
+    # Inside each panel's axes (below the legend) every drawn term's colour is on the plot
+    # and an absent term's is not.
     for panel, terms in enumerate(drawn):
-        pixels = image[panel * 320 : (panel + 1) * 320].reshape(-1, 3)
+        top = panel * PANEL_H
+        axes = image[top + MARGIN_T : top + PANEL_H - MARGIN_B, MARGIN_L : PANEL_W - MARGIN_R]
+        pixels = axes.reshape(-1, 3)
         for term in TERMS:
             close = np.abs(pixels - np.array(TERMS[term])).max(-1) < 0.02
             assert (int(close.sum()) > 50) == (term in terms), (panel, term)
