@@ -9,6 +9,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from pano4d.region_cli import app as regions_app
+
 app = typer.Typer(
     name="pano4d",
     help=(
@@ -21,6 +23,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 console = Console(stderr=True)
+app.add_typer(regions_app)
 
 
 def fail(message: str) -> None:
