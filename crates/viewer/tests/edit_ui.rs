@@ -17,25 +17,11 @@ use pano4d_viewer::edit::app::EditorApp;
 use pano4d_viewer::edit::bridge::{Python, RegionJson};
 use pano4d_viewer::edit::document::{Mask, Shape};
 
+mod common;
+use common::TempDir;
+
 const W: u32 = 512;
 const H: u32 = 256;
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("pano4d-edit-ui-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn python() -> Python {
     let program = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
@@ -84,6 +70,7 @@ fn write_scene(dir: &Path) -> PathBuf {
     scene
 }
 
+/// The editor on `scene`, after its first frames.
 fn open_editor(scene: &Path) -> Harness<'static, EditorApp> {
     let scene = scene.to_path_buf();
     let mut harness = Harness::builder()
@@ -91,8 +78,16 @@ fn open_editor(scene: &Path) -> Harness<'static, EditorApp> {
         .wgpu()
         .build_eframe(move |_| EditorApp::new(&scene, python()));
     harness.run();
-    assert_eq!(harness.state().error(), None);
     harness
+}
+
+/// A fresh folder with [`SCENE`] and the editor open on it.
+fn editor(tag: &str) -> (TempDir, PathBuf, Harness<'static, EditorApp>) {
+    let dir = TempDir::new(tag);
+    let scene = write_scene(&dir.0);
+    let harness = open_editor(&scene);
+    assert_eq!(harness.state().error(), None);
+    (dir, scene, harness)
 }
 
 fn choose(harness: &mut Harness<'static, EditorApp>, label: &str) {
@@ -176,9 +171,7 @@ fn pano4d_check(scene: &Path) {
 
 #[test]
 fn a_drawn_box_and_arrow_are_what_scene_yaml_says_after_saving() {
-    let dir = TempDir::new("box");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
+    let (_dir, scene, mut harness) = editor("box");
     choose(&mut harness, "Box");
     let (from, to) = (
         screen(&harness, 100.0, 60.0),
@@ -216,9 +209,7 @@ fn a_drawn_box_and_arrow_are_what_scene_yaml_says_after_saving() {
 
 #[test]
 fn a_box_dragged_across_the_seam_is_one_wrapping_region_in_both_views() {
-    let dir = TempDir::new("seam");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
+    let (dir, scene, mut harness) = editor("seam");
     // Pan so that the seam (u = 0 = 512) is in the middle of the view.
     choose(&mut harness, "Navigate");
     let middle = harness.state().view_rect().center();
@@ -275,42 +266,33 @@ fn a_box_dragged_across_the_seam_is_one_wrapping_region_in_both_views() {
     );
 }
 
+/// Region `index`'s mask and the file scene.yaml names for it (None once painted).
+fn mask_of(harness: &Harness<'static, EditorApp>, index: usize) -> (Mask, Option<String>) {
+    match &harness.state().document().unwrap().regions[index].shape {
+        Shape::Mask { mask, file } => ((**mask).clone(), file.clone()),
+        other => panic!("region {index} is not a mask: {other:?}"),
+    }
+}
+
 #[test]
 fn painting_then_undo_leaves_the_mask_unchanged() {
-    let dir = TempDir::new("paint");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
-    let original = match &harness.state().document().unwrap().regions[0].shape {
-        Shape::Mask { mask, .. } => (**mask).clone(),
-        other => panic!("{other:?}"),
-    };
+    let (dir, scene, mut harness) = editor("paint");
+    let (original, _) = mask_of(&harness, 0);
     choose(&mut harness, "water (mask)");
     choose(&mut harness, "Paint");
     drag_px(&mut harness, [100.0, 100.0], [300.0, 150.0]);
-    let painted = match &harness.state().document().unwrap().regions[0].shape {
-        Shape::Mask { mask, file } => {
-            assert_eq!(*file, None, "a painted mask is saved anew");
-            (**mask).clone()
-        }
-        other => panic!("{other:?}"),
-    };
+    let (painted, file) = mask_of(&harness, 0);
+    assert_eq!(file, None, "a painted mask is saved anew");
     assert!(
         painted.count() > original.count() + 500,
         "the stroke painted"
     );
     choose(&mut harness, "Undo");
-    match &harness.state().document().unwrap().regions[0].shape {
-        Shape::Mask { mask, file } => {
-            assert_eq!(**mask, original, "undo restores every pixel");
-            assert_eq!(file.as_deref(), Some("water.png"));
-        }
-        other => panic!("{other:?}"),
-    }
+    let (undone, file) = mask_of(&harness, 0);
+    assert_eq!(undone, original, "undo restores every pixel");
+    assert_eq!(file.as_deref(), Some("water.png"));
     choose(&mut harness, "Redo");
-    match &harness.state().document().unwrap().regions[0].shape {
-        Shape::Mask { mask, .. } => assert_eq!(**mask, painted, "redo paints it again"),
-        other => panic!("{other:?}"),
-    }
+    assert_eq!(mask_of(&harness, 0).0, painted, "redo paints it again");
     // Saved: the painted mask goes beside scene.yaml under the region's name.
     save(&mut harness);
     let regions = read_back(&scene);
@@ -321,9 +303,7 @@ fn painting_then_undo_leaves_the_mask_unchanged() {
 
 #[test]
 fn a_brush_at_the_pole_in_the_perspective_view_paints_a_cap() {
-    let dir = TempDir::new("pole");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
+    let (_dir, _scene, mut harness) = editor("pole");
     choose(&mut harness, "Perspective");
     harness
         .state_mut()
@@ -338,15 +318,12 @@ fn a_brush_at_the_pole_in_the_perspective_view_paints_a_cap() {
         .screen_of(DVec2::new(0.0, 0.0))
         .expect("the zenith is in view");
     click_at(&mut harness, pole);
-    let doc = harness.state().document().unwrap();
     assert_eq!(
-        doc.regions.len(),
+        harness.state().document().unwrap().regions.len(),
         2,
         "painting with nothing selected starts a mask region"
     );
-    let Shape::Mask { mask, .. } = &doc.regions[1].shape else {
-        panic!("{:?}", doc.regions[1]);
-    };
+    let (mask, _) = mask_of(&harness, 1);
     // A cap of 20 px radius round the pole: every column of the top rows.
     for y in 0..15 {
         assert!(
@@ -362,9 +339,7 @@ fn a_brush_at_the_pole_in_the_perspective_view_paints_a_cap() {
 
 #[test]
 fn rename_delete_and_comments_survive_a_save() {
-    let dir = TempDir::new("rename");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
+    let (_dir, scene, mut harness) = editor("rename");
     choose(&mut harness, "Click");
     let at = screen(&harness, 200.0, 40.0);
     click_at(&mut harness, at);
@@ -391,9 +366,7 @@ fn rename_delete_and_comments_survive_a_save() {
 
 #[test]
 fn animate_preview_plays_the_unsaved_regions_in_place() {
-    let dir = TempDir::new("preview");
-    let scene = write_scene(&dir.0);
-    let mut harness = open_editor(&scene);
+    let (_dir, scene, mut harness) = editor("preview");
     choose(&mut harness, "Box");
     drag_px(&mut harness, [100.0, 40.0], [300.0, 120.0]);
     choose(&mut harness, "Animate preview");
@@ -441,12 +414,7 @@ fn an_invalid_scene_shows_its_error_in_the_window() {
         "panorama: pano.png\nregions: [{box: [1, 9, 3, 4]}]\n",
     )
     .unwrap();
-    let path = scene.clone();
-    let mut harness = Harness::builder()
-        .with_size(egui::vec2(900.0, 500.0))
-        .wgpu()
-        .build_eframe(move |_| EditorApp::new(&path, python()));
-    harness.run();
+    let harness = open_editor(&scene);
     harness.get_by_label("Cannot edit the regions");
     let error = harness.state().error().unwrap();
     assert!(
@@ -457,4 +425,18 @@ fn an_invalid_scene_shows_its_error_in_the_window() {
         !error.contains('\n') || error.lines().count() < 3,
         "{error}"
     );
+}
+
+#[test]
+fn edit_needs_a_scene_yaml_and_no_headless() {
+    let cases: [&[&str]; 2] = [&["--edit"], &["--edit", "scene.yaml", "--headless"]];
+    for args in cases {
+        let out = Command::new(env!("CARGO_BIN_EXE_pano4d-view"))
+            .args(args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains("--edit needs a scene.yaml"), "{stderr}");
+    }
 }

@@ -747,13 +747,12 @@ impl EditorApp {
             {
                 let motion = region.motion_or_default();
                 let text = format!("{}  {:.1}°/frame", region.label(index), motion.speed);
-                painter.text(
-                    p + egui::vec2(6.0, -6.0),
-                    egui::Align2::LEFT_BOTTOM,
-                    text,
-                    egui::FontId::proportional(13.0),
-                    colour,
-                );
+                let galley = painter.layout_no_wrap(text, egui::FontId::proportional(13.0), colour);
+                // Below the anchor: arrows mostly run sideways or up from it.
+                let at = p + egui::vec2(-galley.size().x / 2.0, 10.0);
+                let backdrop = Rect::from_min_size(at, galley.size()).expand(3.0);
+                painter.rect_filled(backdrop, 3.0, Color32::from_black_alpha(170));
+                painter.galley(at, galley, colour);
             }
         }
         match self.gesture {

@@ -345,7 +345,7 @@ pub struct Document {
 const MEAN_GRID_WIDTH: u32 = 256;
 /// A motion arrow shows the region's motion over the loop, but at least and at most
 /// this arc, so that slow and fast motions both read as arrows.
-const ARROW_MIN_DEG: f64 = 8.0;
+const ARROW_MIN_DEG: f64 = 20.0;
 const ARROW_MAX_DEG: f64 = 90.0;
 
 impl Document {
@@ -657,9 +657,10 @@ mod tests {
             b,
             Some(Motion {
                 direction_deg: 0.0,
-                speed: 1.0,
+                speed: 2.0,
             }),
         )]);
+        // 14 frames at 2°/frame: 28° of turn.
         let path = right.motion_path(0, 14, 8);
         let end = *path.last().unwrap();
         assert!(
@@ -667,19 +668,20 @@ mod tests {
             "direction 0 stays on its row: {end:?}"
         );
         assert!(
-            (end.x - (120.0 + 14.0 * W as f64 / 360.0)).abs() < 1e-6,
+            (end.x - (120.0 + 28.0 * W as f64 / 360.0)).abs() < 1e-6,
             "{end:?}"
         );
         let up = document(vec![boxed(
             b,
             Some(Motion {
                 direction_deg: 90.0,
-                speed: 1.0,
+                speed: 2.0,
             }),
         )]);
         let end = *up.motion_path(0, 14, 8).last().unwrap();
         assert!(
-            (end.x - 120.0).abs() < 1e-6 && end.y < 120.0 - 19.0,
+            (end.x - 120.0).abs() < 1e-6
+                && (end.y - (120.0 - 28.0 * H as f64 / 180.0)).abs() < 1e-6,
             "direction 90 rises: {end:?}"
         );
         // The drawn direction is the drag's, in the image.
