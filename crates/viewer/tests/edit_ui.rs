@@ -440,3 +440,23 @@ fn edit_needs_a_scene_yaml_and_no_headless() {
         assert!(stderr.contains("--edit needs a scene.yaml"), "{stderr}");
     }
 }
+
+#[test]
+fn closing_with_unsaved_changes_is_refused_once() {
+    let (_dir, _scene, mut harness) = editor("close");
+    let close = |harness: &mut Harness<'static, EditorApp>| {
+        let root = egui::ViewportId::ROOT;
+        let info = harness.input_mut().viewports.entry(root).or_default();
+        info.events.push(egui::ViewportEvent::Close);
+        harness.step();
+        harness.output().viewport_output[&root]
+            .commands
+            .contains(&egui::ViewportCommand::CancelClose)
+    };
+    assert!(!close(&mut harness), "nothing to lose: it closes");
+    choose(&mut harness, "Box");
+    drag_px(&mut harness, [10.0, 10.0], [60.0, 40.0]);
+    assert!(close(&mut harness), "a drawn box is not lost silently");
+    assert!(harness.state().status().starts_with("Unsaved changes"));
+    assert!(!close(&mut harness), "the second close discards");
+}

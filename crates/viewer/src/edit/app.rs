@@ -141,6 +141,8 @@ pub struct EditorApp {
     preview_job: Option<PreviewJob>,
     playback: Option<(Preview, Instant)>,
     view_rect: Rect,
+    /// A close was refused once for unsaved changes: the next one closes.
+    close_warned: bool,
 }
 
 impl EditorApp {
@@ -169,6 +171,7 @@ impl EditorApp {
             preview_job: None,
             playback: None,
             view_rect: Rect::NOTHING,
+            close_warned: false,
         };
         match app.open() {
             Ok(loaded) => {
@@ -273,6 +276,26 @@ impl EditorApp {
             .as_ref()
             .map(|(preview, start)| preview.frame_at(start.elapsed()));
         (self.preview_job.is_some(), playing)
+    }
+
+    /// Whether the regions differ from the file's.
+    pub fn unsaved(&self) -> bool {
+        self.loaded
+            .as_ref()
+            .is_some_and(|l| l.doc.regions != l.saved)
+    }
+
+    /// Closing with unsaved changes is refused once, with a warning; the next close
+    /// discards them.
+    fn guard_close(&mut self, ctx: &egui::Context) {
+        if !ctx.input(|i| i.viewport().close_requested()) || !self.unsaved() {
+            return;
+        }
+        if !self.close_warned {
+            ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
+            self.close_warned = true;
+            self.status = "Unsaved changes: Save (ctrl+S), or close again to discard them".into();
+        }
     }
 
     fn size(&self) -> (u32, u32) {
@@ -800,14 +823,13 @@ impl EditorApp {
             ui.add(egui::DragValue::new(&mut self.click_size).range(8.0..=4096.0))
                 .labelled_by(click.id);
             ui.separator();
-            let (can_undo, can_redo, unsaved) =
-                self.loaded.as_ref().map_or((false, false, false), |l| {
-                    (
-                        l.history.can_undo(&l.doc.regions),
-                        l.history.can_redo(&l.doc.regions),
-                        l.doc.regions != l.saved,
-                    )
-                });
+            let unsaved = self.unsaved();
+            let (can_undo, can_redo) = self.loaded.as_ref().map_or((false, false), |l| {
+                (
+                    l.history.can_undo(&l.doc.regions),
+                    l.history.can_redo(&l.doc.regions),
+                )
+            });
             if ui
                 .add_enabled(can_undo, egui::Button::new("Undo"))
                 .on_hover_text("ctrl+Z")
@@ -1019,6 +1041,7 @@ fn cap_rim(centre: DVec3, radius: f64, width: u32, height: u32, u_near: f64) -> 
 impl eframe::App for EditorApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
+        self.guard_close(&ctx);
         self.handle_keys(&ctx);
         self.poll_preview(&ctx);
         if self.playback.is_some() {

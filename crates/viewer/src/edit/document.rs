@@ -379,10 +379,17 @@ impl Document {
         let mut labels = vec![0u8; mw * mh];
         let sx = self.width as f64 / mw as f64;
         let sy = self.height as f64 / mh as f64;
+        // The first pixel whose centre (i + 0.5)·scale is at or past `at`.
+        let first =
+            |at: f64, scale: f64, n: usize| ((at / scale - 0.5).ceil().max(0.0) as usize).min(n);
         for (index, region) in self.regions.iter().enumerate() {
             let label = (index + 1).min(255) as u8;
-            if let Shape::Mask { mask, .. } = &region.shape {
-                if (mask.width as usize, mask.height as usize) == (mw, mh) {
+            let b = match &region.shape {
+                Shape::Box(b) => *b,
+                Shape::Click { at, size } => click_box(*at, *size, self.width, self.height),
+                Shape::Mask { mask, .. }
+                    if (mask.width, mask.height) == (self.mask_width, self.mask_height) =>
+                {
                     for (out, &m) in labels.iter_mut().zip(&mask.pixels) {
                         if m != 0 {
                             *out = label;
@@ -390,13 +397,28 @@ impl Document {
                     }
                     continue;
                 }
-            }
-            for y in 0..mh {
-                let v = (y as f64 + 0.5) * sy;
-                for x in 0..mw {
-                    if self.covers(index, (x as f64 + 0.5) * sx, v) {
-                        labels[y * mw + x] = label;
+                Shape::Mask { .. } => {
+                    for y in 0..mh {
+                        let v = (y as f64 + 0.5) * sy;
+                        for x in 0..mw {
+                            if self.covers(index, (x as f64 + 0.5) * sx, v) {
+                                labels[y * mw + x] = label;
+                            }
+                        }
                     }
+                    continue;
+                }
+            };
+            // A box is a run of rows, each one run of columns (two across the seam).
+            let (x0, x1) = (first(b.u0, sx, mw), first(b.u1, sx, mw));
+            let runs = if b.wraps() {
+                [(x0, mw), (0, x1)]
+            } else {
+                [(x0, x1), (0, 0)]
+            };
+            for y in first(b.v0, sy, mh)..first(b.v1, sy, mh) {
+                for (start, end) in runs {
+                    labels[y * mw + start..y * mw + end.max(start)].fill(label);
                 }
             }
         }
@@ -643,6 +665,54 @@ mod tests {
             ),
             (1, 2, 2, 0)
         );
+    }
+
+    #[test]
+    fn labels_match_the_per_pixel_rule() {
+        let shapes = [
+            Shape::Box(PixelBox {
+                u0: 10.3,
+                v0: 0.0,
+                u1: 200.7,
+                v1: 33.5,
+            }),
+            Shape::Box(PixelBox {
+                u0: 480.0,
+                v0: 100.0,
+                u1: 21.0,
+                v1: 256.0,
+            }),
+            Shape::Box(PixelBox {
+                u0: 0.0,
+                v0: 7.0,
+                u1: 512.0,
+                v1: 9.0,
+            }),
+            Shape::Click {
+                at: DVec2::new(3.0, 250.0),
+                size: 40.0,
+            },
+        ];
+        for shape in shapes {
+            let doc = document(vec![Region {
+                name: None,
+                shape,
+                motion: None,
+            }]);
+            let labels = doc.labels();
+            for y in 0..doc.mask_height {
+                for x in 0..doc.mask_width {
+                    let (u, v) = ((x as f64 + 0.5) * 2.0, (y as f64 + 0.5) * 2.0);
+                    let expected = doc.covers(0, u, v) as u8;
+                    assert_eq!(
+                        labels[(y * doc.mask_width + x) as usize],
+                        expected,
+                        "{:?} at {x}, {y}",
+                        doc.regions[0]
+                    );
+                }
+            }
+        }
     }
 
     #[test]

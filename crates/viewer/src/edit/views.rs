@@ -38,15 +38,21 @@ impl Pyramid {
         Self { levels }
     }
 
-    /// The colour at panorama fraction (fu, fv) ∈ [0, 1)², nearest pixel of the level
-    /// whose pixel covers about `footprint` of the finest level's pixels.
-    fn sample(&self, fu: f64, fv: f64, footprint: f64) -> [u8; 3] {
-        let level = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
-        let image = &self.levels[level];
-        let x = ((fu * image.width() as f64) as u32).min(image.width() - 1);
-        let y = ((fv * image.height() as f64) as u32).min(image.height() - 1);
-        image.get_pixel(x, y).0
+    pub fn width(&self) -> u32 {
+        self.levels[0].width()
     }
+
+    /// The level whose pixel covers about `footprint` of the finest level's pixels.
+    fn level(&self, footprint: f64) -> &RgbImage {
+        &self.levels[(footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1)]
+    }
+}
+
+/// The colour of `image` at fraction (fu, fv) ∈ [0, 1)², nearest pixel.
+fn sample(image: &RgbImage, fu: f64, fv: f64) -> [u8; 3] {
+    let x = ((fu * image.width() as f64) as u32).min(image.width() - 1);
+    let y = ((fv * image.height() as f64) as u32).min(image.height() - 1);
+    image.get_pixel(x, y).0
 }
 
 /// Which view the editor shows.
@@ -117,7 +123,7 @@ impl Default for PerspectiveView {
 
 impl PerspectiveView {
     /// The pinhole camera for `rect`, in points relative to its top-left corner.
-    fn pinhole(&self, rect: Rect) -> Camera {
+    pub fn pinhole(&self, rect: Rect) -> Camera {
         let (w, h) = (
             rect.width().round().max(1.0),
             rect.height().round().max(1.0),
@@ -126,8 +132,7 @@ impl PerspectiveView {
     }
 
     pub fn to_dir(&self, rect: Rect, p: Pos2) -> DVec3 {
-        let uv = DVec2::new((p.x - rect.min.x) as f64, (p.y - rect.min.y) as f64);
-        self.pinhole(rect).unproject_ray(uv, 1.0)
+        ray(&self.pinhole(rect), rect, p)
     }
 
     /// The screen point of direction `d`, None behind the camera.
@@ -135,6 +140,12 @@ impl PerspectiveView {
         let (uv, z) = self.pinhole(rect).project(d);
         (z > 1e-6).then(|| rect.min + egui::vec2(uv.x as f32, uv.y as f32))
     }
+}
+
+/// The direction seen at screen point `p` by `camera` (made for `rect`).
+fn ray(camera: &Camera, rect: Rect, p: Pos2) -> DVec3 {
+    let uv = DVec2::new((p.x - rect.min.x) as f64, (p.y - rect.min.y) as f64);
+    camera.unproject_ray(uv, 1.0)
 }
 
 /// A view of the panorama in a screen rectangle.
@@ -148,12 +159,25 @@ impl View {
     /// The panorama pixel under `p` (u continuous in the equirect view, in [0, W) in the
     /// perspective view), None off the image.
     pub fn to_pixel(&self, rect: Rect, p: Pos2, width: u32, height: u32) -> Option<DVec2> {
-        match self {
-            Self::Panorama(view) => {
+        self.mapper(rect, width, height)(p)
+    }
+
+    /// [`Self::to_pixel`] for many points: the camera is built once.
+    fn mapper(&self, rect: Rect, width: u32, height: u32) -> impl Fn(Pos2) -> Option<DVec2> {
+        enum Mapping {
+            Flat(PanoramaView),
+            Pinhole(Camera),
+        }
+        let mapping = match self {
+            Self::Panorama(view) => Mapping::Flat(*view),
+            Self::Perspective(view) => Mapping::Pinhole(view.pinhole(rect)),
+        };
+        move |p| match &mapping {
+            Mapping::Flat(view) => {
                 let uv = view.to_pixel(rect, p);
                 (0.0..height as f64).contains(&uv.y).then_some(uv)
             }
-            Self::Perspective(view) => Some(dir_to_equirect(view.to_dir(rect, p), width, height)),
+            Mapping::Pinhole(camera) => Some(dir_to_equirect(ray(camera, rect, p), width, height)),
         }
     }
 
@@ -247,43 +271,59 @@ pub fn compose(
 ) -> ColorImage {
     let w_px = (rect.width() * pixels_per_point).round().max(1.0) as usize;
     let h_px = (rect.height() * pixels_per_point).round().max(1.0) as usize;
-    let footprint = view
-        .footprint(rect, pixels_per_point, source.levels[0].width())
-        .max(1.0);
-    let mut pixels = vec![Color32::from_gray(24); w_px * h_px];
-    for (y, row) in pixels.chunks_mut(w_px).enumerate() {
-        for (x, out) in row.iter_mut().enumerate() {
-            let p = rect.min
-                + egui::vec2(
-                    (x as f32 + 0.5) / pixels_per_point,
-                    (y as f32 + 0.5) / pixels_per_point,
-                );
-            let Some(uv) = view.to_pixel(rect, p, width, height) else {
-                continue;
-            };
-            let (fu, fv) = ((uv.x / width as f64).rem_euclid(1.0), uv.y / height as f64);
-            let [r, g, b] = source.sample(fu, fv, footprint);
-            let mut colour = [r as f32, g as f32, b as f32];
-            if let Some(tint) = tint {
-                let tx = ((fu * tint.width as f64) as usize).min(tint.width as usize - 1);
-                let ty = ((fv * tint.height as f64) as usize).min(tint.height as usize - 1);
-                let label = tint.labels[ty * tint.width as usize + tx];
-                if label > 0 {
-                    let index = label as usize - 1;
-                    let alpha = if tint.selected == Some(index) {
-                        0.55
-                    } else {
-                        0.3
-                    };
-                    let c = region_colour(index);
-                    for (v, t) in colour.iter_mut().zip([c.r(), c.g(), c.b()]) {
-                        *v += alpha * (t as f32 - *v);
-                    }
+    let level = source.level(view.footprint(rect, pixels_per_point, source.width()));
+    let to_pixel = view.mapper(rect, width, height);
+    let shade = |x: usize, y: usize| -> Option<Color32> {
+        let p = rect.min
+            + egui::vec2(
+                (x as f32 + 0.5) / pixels_per_point,
+                (y as f32 + 0.5) / pixels_per_point,
+            );
+        let uv = to_pixel(p)?;
+        let (fu, fv) = ((uv.x / width as f64).rem_euclid(1.0), uv.y / height as f64);
+        let [r, g, b] = sample(level, fu, fv);
+        let mut colour = [r as f32, g as f32, b as f32];
+        if let Some(tint) = tint {
+            let tx = ((fu * tint.width as f64) as usize).min(tint.width as usize - 1);
+            let ty = ((fv * tint.height as f64) as usize).min(tint.height as usize - 1);
+            let label = tint.labels[ty * tint.width as usize + tx];
+            if label > 0 {
+                let index = label as usize - 1;
+                let alpha = if tint.selected == Some(index) {
+                    0.55
+                } else {
+                    0.3
+                };
+                let c = region_colour(index);
+                for (v, t) in colour.iter_mut().zip([c.r(), c.g(), c.b()]) {
+                    *v += alpha * (t as f32 - *v);
                 }
             }
-            *out = Color32::from_rgb(colour[0] as u8, colour[1] as u8, colour[2] as u8);
         }
-    }
+        Some(Color32::from_rgb(
+            colour[0] as u8,
+            colour[1] as u8,
+            colour[2] as u8,
+        ))
+    };
+    let mut pixels = vec![Color32::from_gray(24); w_px * h_px];
+    // Bands of rows on every core: a frame is redrawn while the view is dragged.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let band = h_px.div_ceil(threads).max(1);
+    std::thread::scope(|scope| {
+        for (k, rows) in pixels.chunks_mut(band * w_px).enumerate() {
+            let shade = &shade;
+            scope.spawn(move || {
+                for (i, row) in rows.chunks_mut(w_px).enumerate() {
+                    for (x, out) in row.iter_mut().enumerate() {
+                        if let Some(colour) = shade(x, k * band + i) {
+                            *out = colour;
+                        }
+                    }
+                }
+            });
+        }
+    });
     ColorImage::new([w_px, h_px], pixels)
 }
 
