@@ -243,11 +243,6 @@ impl EditorApp {
         &mut self.perspective
     }
 
-    pub fn panorama_view_mut(&mut self) -> Option<&mut PanoramaView> {
-        self.composed = None;
-        self.panorama_view.as_mut()
-    }
-
     /// The screen point of panorama pixel `uv` in the current view (the copy nearest the
     /// view's centre in the equirect view).
     pub fn screen_of(&self, uv: DVec2) -> Option<Pos2> {
