@@ -238,8 +238,8 @@ impl EditorApp {
         }
     }
 
+    /// Points the perspective view (tests, the screenshot).
     pub fn perspective_mut(&mut self) -> &mut PerspectiveView {
-        self.composed = None;
         &mut self.perspective
     }
 
