@@ -38,7 +38,7 @@ def _run(action: Any) -> None:
     """Print ``action()``'s result as JSON, or fail with its ConfigError / ImageError."""
     from pano4d.cli import fail
     from pano4d.config import ConfigError
-    from pano4d.imageio import ImageError
+    from pano4d.images import ImageError
 
     try:
         result = action()

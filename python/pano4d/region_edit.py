@@ -36,7 +36,7 @@ import yaml
 
 from pano4d.config import ConfigError, PathLike, Region, SceneConfig, load_config, validate_config
 from pano4d.fsutil import atomic_path
-from pano4d.imageio import image_size, read_mask, read_panorama, write_image
+from pano4d.images import image_size, read_mask, read_panorama, write_image
 
 # Painted masks are edited and saved at most this wide (the pipeline resizes a mask of the
 # panorama's aspect): a stroke's undo copy stays small, and brushes are tens of pixels.
@@ -280,8 +280,8 @@ def render_preview(
     import torch.nn.functional as F
 
     from pano4d.animate.flow import FlowAnimator
-    from pano4d.animate.regions import regions_from_masks
     from pano4d.config import Motion
+    from pano4d.regions import region_mask, regions_from_masks
 
     started = time.perf_counter()
     scene = Path(scene).resolve()
@@ -297,7 +297,7 @@ def render_preview(
     small = small[0].permute(1, 2, 0).contiguous()
     masks = []
     for index, region in enumerate(edited.regions):
-        full = torch.from_numpy(np.ascontiguousarray(region.to_mask(full_w, full_h)))
+        full = torch.from_numpy(np.ascontiguousarray(region_mask(region, full_w, full_h)))
         mask = F.interpolate(full[None, None].float(), size=(height, width), mode="area")[0, 0]
         if not (mask > 0).any():
             raise EditError(f"regions[{index}] covers no pixel of the panorama")
