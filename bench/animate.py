@@ -116,10 +116,19 @@ def _mib(n: int) -> float:
     return round(n / 2**20, 1)
 
 
-def load_panorama(width: int) -> torch.Tensor:
-    if not PANORAMA.is_file():
-        raise SystemExit(f"benchmark panorama not found: {PANORAMA} (see shared/data/SOURCES.md)")
-    image = torch.from_numpy(read_panorama(PANORAMA)).permute(2, 0, 1)[None]
+def load_panorama(source: str, width: int) -> torch.Tensor:
+    """The panorama at ``width``: the image at ``source``, or for ``"synthetic"`` smooth
+    colour waves (with random weights the UNet's cost does not depend on the content; for a
+    machine without ../shared/data)."""
+    if source == "synthetic":
+        dirs = equirect_directions(width, width // 2, torch.float64)
+        x, y, z = dirs.unbind(-1)
+        waves = torch.stack([torch.sin(5 * x + z), torch.cos(4 * y), torch.sin(3 * z + x)])
+        return (0.5 + 0.4 * waves).float().contiguous()
+    path = Path(source)
+    if not path.is_file():
+        raise SystemExit(f"benchmark panorama not found: {path} (see shared/data/SOURCES.md)")
+    image = torch.from_numpy(read_panorama(path)).permute(2, 0, 1)[None]
     if image.shape[-1] != width:
         image = F.interpolate(image, size=(width // 2, width), mode="area")
     return image[0].clamp(0, 1).contiguous()
@@ -246,6 +255,9 @@ def main() -> None:
         "--weights", type=Path, help="diffusers folder to load (written first if missing)"
     )
     parser.add_argument("--json", type=Path, help="output (default bench/out/animate*.json)")
+    parser.add_argument(
+        "--panorama", default=str(PANORAMA), help="image path, or 'synthetic' (default the lake)"
+    )
     args = parser.parse_args()
     full = args.full
     width = args.width or (4096 if full else 512)
@@ -259,7 +271,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="pano4d-svd-") as scratch:
         folder = args.weights or Path(scratch) / "svd"
         model = build_model(full, device, dtype, settings, folder)
-    panorama = load_panorama(width)
+    panorama = load_panorama(args.panorama, width)
 
     scenes = [bench_scene(model, settings, panorama, worth) for worth in args.worth]
     print(f"{'full SVD' if full else 'tiny SVD'} on {device} ({dtype}), {width}x{width // 2}, "
@@ -291,7 +303,7 @@ def main() -> None:
             "device": str(device),
             "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None,
             "dtype": str(dtype),
-            "panorama": f"{PANORAMA.name} at {width}x{width // 2}",
+            "panorama": f"{Path(args.panorama).name} at {width}x{width // 2}",
             "frames": frames,
             "steps": steps,
             "views": args.views,

@@ -13,7 +13,7 @@
 //!
 //! `cargo run --release -p pano4d-viewer --bin viewer-bench -- [--quick] [--json PATH]
 //!  [--size WxH] [--sh-degree D] [--counts N,N,...] [--frames F] [--times T]
-//!  [--budget-mib M]`
+//!  [--budget-mib M]`; `viewer-bench --adapter` prints the adapter it would use.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -266,6 +266,15 @@ fn run_case(
 }
 
 fn run() -> Result<(), String> {
+    if std::env::args().nth(1).as_deref() == Some("--adapter") {
+        // What bench/gpu.sh checks before a GPU run: the adapter PANO4D_ADAPTER picks.
+        let adapter = FrameRenderer::headless()?.adapter().clone();
+        println!(
+            "{} ({}, {})",
+            adapter.name, adapter.backend, adapter.device_type
+        );
+        return Ok(());
+    }
     let options = parse()?;
     let mut resident = FrameRenderer::headless()?;
     let mut streamed = FrameRenderer::headless()?;
