@@ -34,6 +34,20 @@ SVD_SCHEDULER = {
 }
 
 
+# SVD's temporal VAE and ViT-H/14 CLIP image encoder, and their tiny twins.
+_VAE_KWARGS: dict[str, dict[str, Any]] = {
+    "full": {"block_out_channels": (128, 256, 512, 512), "layers_per_block": 2, "sample_size": 768},
+    "tiny": {"block_out_channels": (32, 32, 32, 32), "layers_per_block": 1, "sample_size": 64},
+}
+_CLIP_KWARGS: dict[str, dict[str, Any]] = {
+    "full": {"hidden_size": 1280, "intermediate_size": 5120, "num_attention_heads": 16,
+             "num_hidden_layers": 32, "patch_size": 14, "image_size": 224,
+             "projection_dim": 1024, "hidden_act": "gelu"},
+    "tiny": {"hidden_size": 32, "intermediate_size": 64, "num_attention_heads": 2,
+             "num_hidden_layers": 2, "patch_size": 8, "image_size": 32, "projection_dim": 32},
+}  # fmt: skip
+
+
 def unet_kwargs(size: Size = "tiny", mask_channel: bool = False) -> dict[str, Any]:
     """UNetSpatioTemporalConditionModel arguments: ``"full"`` is SVD's UNet (diffusers'
     defaults are SVD's: 320–1280 channels, 5–20 heads of 64, three cross-attention levels);
@@ -68,41 +82,13 @@ def random_svd_networks(
     from diffusers import AutoencoderKLTemporalDecoder, UNetSpatioTemporalConditionModel
     from transformers import CLIPVisionConfig, CLIPVisionModelWithProjection
 
+    unet_config = unet_kwargs(size, mask_channel)  # refuses an unknown size
     torch.manual_seed(seed)
-    unet = UNetSpatioTemporalConditionModel(**unet_kwargs(size, mask_channel))
-    if size == "full":
-        vae = AutoencoderKLTemporalDecoder(
-            down_block_types=("DownEncoderBlock2D",) * 4,
-            block_out_channels=(128, 256, 512, 512),
-            layers_per_block=2,
-            sample_size=768,
-        )
-        clip = CLIPVisionConfig(
-            hidden_size=1280,
-            intermediate_size=5120,
-            num_attention_heads=16,
-            num_hidden_layers=32,
-            patch_size=14,
-            image_size=224,
-            projection_dim=1024,
-            hidden_act="gelu",
-        )
-    else:
-        vae = AutoencoderKLTemporalDecoder(
-            down_block_types=("DownEncoderBlock2D",) * 4,
-            block_out_channels=(32, 32, 32, 32),
-            layers_per_block=1,
-            sample_size=64,
-        )
-        clip = CLIPVisionConfig(
-            hidden_size=32,
-            intermediate_size=64,
-            num_attention_heads=2,
-            num_hidden_layers=2,
-            patch_size=8,
-            image_size=32,
-            projection_dim=32,
-        )
+    unet = UNetSpatioTemporalConditionModel(**unet_config)
+    vae = AutoencoderKLTemporalDecoder(
+        down_block_types=("DownEncoderBlock2D",) * 4, **_VAE_KWARGS[size]
+    )
+    clip = CLIPVisionConfig(**_CLIP_KWARGS[size])
     return unet.eval(), vae.eval(), CLIPVisionModelWithProjection(clip).eval()
 
 
