@@ -24,9 +24,10 @@
 # python3), VIEWER_BENCH (default target/release/viewer-bench), PANO4D_WHEELS (default
 # .whl), PANO4D_VULKAN_ROOT (default .gl), VK_DRIVER_FILES (default the NVIDIA ICD under
 # /usr/local/nvidia when it exists), PART_TIMEOUT (seconds per part, default 540: under the
-# 10-minute limit of one command on the lent GPU machines), SVD_WEIGHTS (where the random
-# full-size SVD is written once and reused, default /tmp/pano4d-svd-full), ANIMATE_ARGS,
-# QUALITY_ARGS, TRAIN_STEP_ARGS (replace the parts' default arguments).
+# 10-minute limit of one command on the lent GPU machines; 1800 with --smoke),
+# SVD_WEIGHTS (where the random full-size SVD is written once and reused, default
+# /tmp/pano4d-svd-full), ANIMATE_ARGS, QUALITY_ARGS, TRAIN_STEP_ARGS (replace the parts'
+# default arguments).
 
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -40,7 +41,7 @@ for arg in "$@"; do
     case "$arg" in
         --smoke) smoke=1 ;;
         --dry-run) dry_run=1 ;;
-        -h | --help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "$0"; exit 0 ;;
         raster | viewer | animate | train_step | quality) parts+=("$arg") ;;
         -*) echo "gpu.sh: unknown option $arg (see bench/gpu.sh --help)" >&2; exit 2 ;;
         *)
@@ -65,7 +66,9 @@ fi
 VIEWER_BENCH="${VIEWER_BENCH:-target/release/viewer-bench}"
 WHEELS="${PANO4D_WHEELS:-.whl}"
 VULKAN_ROOT="${PANO4D_VULKAN_ROOT:-.gl}"
-PART_TIMEOUT="${PART_TIMEOUT:-540}"
+# Under the 10-minute limit of one command on the lent GPU machines; smoke runs on a
+# loaded 2-core machine take longer (raster.py --quick's torch reference alone minutes).
+PART_TIMEOUT="${PART_TIMEOUT:-$([ $smoke -eq 1 ] && echo 1800 || echo 540)}"
 SVD_WEIGHTS="${SVD_WEIGHTS:-/tmp/pano4d-svd-full}"
 LAKE=../shared/data/pano_lake.jpg
 export PYTHONPATH="$PWD/python${PYTHONPATH:+:$PYTHONPATH}"

@@ -379,7 +379,8 @@ impl ViewerApp {
                     .map_or("none", |r| r.adapter().name.as_str()),
             );
             ui.end_row();
-            if let (Some(renderer), Some(_)) = (&self.renderer, &self.opened) {
+            let dynamic = self.opened.as_ref().is_some_and(|o| o.scene.is_dynamic());
+            if let (Some(renderer), true) = (&self.renderer, dynamic) {
                 ui.label("Timestamps");
                 ui.label(renderer.playback().describe());
                 ui.end_row();
