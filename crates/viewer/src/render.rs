@@ -329,11 +329,17 @@ impl FrameRenderer {
         }
         drawn.map_err(|e| e.to_string())?;
         // Wait for the GPU so that the frame time measures the frame, not its submission.
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| e.to_string())?;
+        self.wait()?;
         self.last_render = start.elapsed();
         Ok(())
+    }
+
+    /// Waits until the GPU has done all the work submitted so far.
+    pub fn wait(&self) -> Result<(), String> {
+        self.device()
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| e.to_string())
     }
 
     /// Draws the shown timestamp into a texture of the renderer's own and reads it back.

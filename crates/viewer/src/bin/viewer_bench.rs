@@ -7,7 +7,9 @@
 //! - *streamed*: playing with the dynamic sets decoded ahead on the stream's worker thread
 //!   and uploaded when shown (the fallback when they do not fit the budget);
 //! - *upload*: the still frame through `Renderer::forward` (whole set uploaded, float
-//!   image read back: the training path).
+//!   image read back: the training path);
+//! - a time change alone, the GPU waited for: the GPU-side copy of a stored set, and the
+//!   decode and the upload of a set that streaming does instead.
 //!
 //! Prints a table and writes JSON.
 //!
@@ -56,6 +58,11 @@ struct Case {
     playing_ms_min: f64,
     /// Median over frames of playing / still at the same pose.
     playing_over_still: f64,
+    /// A time change alone (the GPU waited for): copying a stored set on the GPU, decoding
+    /// a set, uploading a decoded set.
+    copy_ms_median: f64,
+    decode_ms_median: f64,
+    upload_set_ms_median: f64,
     streamed_ms_median: f64,
     upload_ms_median: f64,
 }
@@ -204,6 +211,28 @@ fn run_case(
         ratios.push(play / draw);
     }
 
+    // A time change by itself, the GPU waited for: the GPU-side copy of a stored set (the
+    // resident path), and the decode and the upload of a set (the streamed path).
+    let (mut copy, mut decode, mut upload_set) = (Vec::new(), Vec::new(), Vec::new());
+    streamed.show_time(&scene, 0)?;
+    for frame in 0..options.frames {
+        let t = (frame + 1) % times;
+        copy.push(timed(|| {
+            resident.show_time(&scene, t)?;
+            resident.wait()
+        })?);
+        let mut set = None;
+        decode.push(timed(|| {
+            set = Some(scene.dynamic_set(t)?);
+            Ok(())
+        })?);
+        let set = set.expect("decoded above");
+        upload_set.push(timed(|| {
+            streamed.show(&scene, t, &set)?;
+            streamed.wait()
+        })?);
+    }
+
     // Streaming as the window does it when the sets do not fit: the next timestamp
     // decodes while this one draws.
     let mut stream = DynamicStream::new(Arc::clone(&scene));
@@ -260,6 +289,9 @@ fn run_case(
         playing_ms_min: min(&playing),
         playing_ms_median: median(&mut playing),
         playing_over_still: median(&mut ratios),
+        copy_ms_median: median(&mut copy),
+        decode_ms_median: median(&mut decode),
+        upload_set_ms_median: median(&mut upload_set),
         streamed_ms_median: median(&mut streaming),
         upload_ms_median: median(&mut upload),
     })
@@ -322,9 +354,15 @@ fn run() -> Result<(), String> {
             case.load_ms,
             case.resident_bytes >> 20,
         );
-        if case.resident_bytes == 0 {
-            println!("{:>10} playback {}", "", case.playback);
-        }
+        println!(
+            "{:>10} time change alone: copy {:.2} ms (resident) | decode {:.1} ms + upload \
+             {:.2} ms (streamed); playback {}",
+            "",
+            case.copy_ms_median,
+            case.decode_ms_median,
+            case.upload_set_ms_median,
+            case.playback
+        );
         cases.push(case);
     }
     let report = Report {
