@@ -334,8 +334,10 @@ impl FrameRenderer {
         Ok(())
     }
 
-    /// Waits until the GPU has done all the work submitted so far.
+    /// Waits until the GPU has done all the work queued so far, buffer writes included.
     pub fn wait(&self) -> Result<(), String> {
+        // Writes wait in the queue for the next submission: submit them.
+        self.renderer.context().queue.submit([]);
         self.device()
             .poll(wgpu::PollType::wait_indefinitely())
             .map(|_| ())

@@ -352,7 +352,7 @@ fn run() -> Result<(), String> {
             case.streamed_ms_median,
             case.upload_ms_median,
             case.load_ms,
-            case.resident_bytes >> 20,
+            case.resident_bytes.div_ceil(1 << 20),
         );
         println!(
             "{:>10} time change alone: copy {:.2} ms (resident) | decode {:.1} ms + upload \
