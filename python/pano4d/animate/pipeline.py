@@ -7,7 +7,8 @@ and writes (DESIGN.md, "Files a run writes")::
 
     output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
     output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
-    output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames
+    output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames, and
+                                       the backend's own (svd: how it batched the UNet)
     output/animate/done.json           the inputs' hash: a finished run is skipped
 
 Every file is written atomically. ``run.json`` records the same hash when a run starts: a
