@@ -27,7 +27,7 @@ from pano4d.animate.random_svd import SVD_SCHEDULER, random_svd_networks, save_r
 from pano4d.animate.unet_attention import CUDA_GRID_LIMIT, attention_calls, max_unet_rows
 from pano4d.camera import Camera
 from pano4d.config import AnimateConfig, validate_config
-from pano4d.imageio import read_image
+from pano4d.images import read_image
 from pano4d.sphere import equirect_directions, matched_view_size
 
 FRAMES, STEPS = 3, 2
@@ -220,8 +220,8 @@ def test_tiny_model_loads_in_half_precision_without_warnings(
 
 # --- the backend on a tiny random model -----------------------------------------------------
 def _scene(tmp_path: Path, weights: Path, width: int = 128) -> tuple:
-    from pano4d.animate.regions import moving_mask
-    from pano4d.imageio import write_image
+    from pano4d.images import write_image
+    from pano4d.regions import moving_mask
 
     # A smooth panorama, written and read back through the config like a user's.
     dirs = equirect_directions(width, width // 2, torch.float64)
@@ -267,8 +267,8 @@ def test_animate_svd_moves_only_the_region_and_keeps_the_rest_bit_identical(
 ) -> None:
     """End to end through the loading code, by path: several views, a region across the
     seam, Animate-Anything's mask input; outside the region the input, bit for bit."""
-    from pano4d.animate.regions import blend_weight
     from pano4d.animate.svd import animate_svd
+    from pano4d.regions import blend_weight
 
     cfg, panorama, moving = _scene(tmp_path, tiny_svd_mask)
     panorama = torch.from_numpy(read_image(cfg.panorama)).permute(2, 0, 1).contiguous()
