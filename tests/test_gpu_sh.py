@@ -29,14 +29,14 @@ def gpu_sh(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def viewer_bench() -> Path:
-    """The release viewer-bench (`cargo test --release` builds it; build it if not)."""
-    if not VIEWER_BENCH.is_file():
-        subprocess.run(
-            ["cargo", "build", "--release", "--locked", "-p", "pano4d-viewer", "--bin",
-             "viewer-bench"],
-            cwd=ROOT,
-            check=True,
-        )  # fmt: skip
+    """The release viewer-bench, built from the current sources (cargo does nothing when
+    `cargo test --release` already built it; a stale binary would test old code)."""
+    subprocess.run(
+        ["cargo", "build", "--release", "--locked", "-p", "pano4d-viewer", "--bin",
+         "viewer-bench"],
+        cwd=ROOT,
+        check=True,
+    )  # fmt: skip
     return VIEWER_BENCH
 
 
