@@ -62,7 +62,7 @@ class DensifyStats:
     budget: int
     candidates: int  # surviving Gaussians with a position gradient (seen by some view)
     threshold: float | None  # smallest mean position gradient among the split ones
-    limit: str  # what bounded the split count: "threshold", "share", "growth" or "budget"
+    limit: str  # what bounded the split count: "share" (a tenth of the candidates) or "budget"
 
 
 @dataclass

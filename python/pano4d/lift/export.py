@@ -3,8 +3,9 @@
 ``output/scene.ply4d`` (the static set once, a dynamic set per timestamp), ``preview.mp4``
 (a turntable at the origin, then on a small orbit), ``contact.png`` (ground-truth views
 beside their renders when gt/views.json lies beside the panorama, else test views of the
-moving region at a few times) and ``metrics.json`` (timings, Gaussian counts, sizes, what
-storing the static part once saved, novel-view PSNR/SSIM).
+moving region at a few times), ``metrics.json`` (timings, Gaussian counts, sizes, what
+storing the static part once saved, novel-view PSNR/SSIM) and the diagnosis of every
+optimisation (``lift.diagnosis``: densify.jsonl, losses.json, loss.png).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pano4d.config import config_hash
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image, write_contact_sheet, write_video
+from pano4d.lift.diagnosis import write_diagnosis
 from pano4d.lift.optimize import moved_camera
 from pano4d.lift.pipeline import (
     Alignment,
@@ -92,6 +94,8 @@ def export(lifted: Lifted) -> dict[str, Any]:
         metrics_views,
     )  # fmt: skip
     write_json_atomic(out / "metrics.json", metrics)
+    stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
+    write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
     return metrics
 
 

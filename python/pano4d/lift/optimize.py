@@ -16,6 +16,8 @@ Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and one at
 Densify and prune (when enabled) run every ``densify_every`` steps between 20 % and 70 % of
 the iterations: prune near-transparent Gaussians, split those with the largest accumulated
 position gradient into two smaller ones, and keep the count within ``max_gaussians``.
+For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last step's loss terms in
+``last_terms`` and its last densify-and-prune's counts in ``last_densify``.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
 Adam moments, the view generator, the step), so a resumed run continues bit-for-bit.
 """
@@ -32,6 +34,7 @@ import torch.nn.functional as F
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
+from pano4d.lift.diagnosis import DensifyStats
 
 LAMBDA_RGB = 1.0
 SSIM_WINDOW = 11
@@ -145,6 +148,8 @@ class GaussianTrainer:
         self.step = 0
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
+        self.last_terms: dict[str, torch.Tensor] = {}  # diagnosis.TERMS names, detached
+        self.last_densify: DensifyStats | None = None
         self._set_parameters(gaussians)
 
     # --- parameters ------------------------------------------------------------------------
@@ -200,14 +205,18 @@ class GaussianTrainer:
         target, weight = v.targets[index], v.weights[index]
         wsum = weight.sum().clamp(min=1e-6)
         l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
-        loss = LAMBDA_RGB * (0.8 * l1 + 0.2 * ssim_loss(rgb, target, weight))
+        d_ssim = ssim_loss(rgb, target, weight)
+        loss = LAMBDA_RGB * (0.8 * l1 + 0.2 * d_ssim)
+        terms = {"l1": l1, "d_ssim": d_ssim}
         if k.lambda_temporal > 0 and v.previous is not None:
             temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum
             loss = loss + k.lambda_temporal * temporal
+            terms["temporal"] = temporal
         if k.lambda_geo > 0:
             covered = weight * (out.alpha.detach() > 0.5)
             if covered.sum() > 16:
-                loss = loss + k.lambda_geo * pearson_loss(depth, v.depth[index], covered)
+                terms["geo"] = pearson_loss(depth, v.depth[index], covered)
+                loss = loss + k.lambda_geo * terms["geo"]
         alpha = sem_alpha(self.step, k.iterations)
         if k.lambda_sem > 0 and self.features is not None and alpha > 0:
             delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
@@ -215,7 +224,9 @@ class GaussianTrainer:
             moved_rgb = self.render_fn(self._scene(), moved, self.background).rgb
             centre = self.features.cls(rgb.detach())
             shifted = self.features.cls(moved_rgb)
-            loss = loss + k.lambda_sem * (1 - F.cosine_similarity(centre, shifted, dim=0))
+            terms["sem"] = 1 - F.cosine_similarity(centre, shifted, dim=0)
+            loss = loss + k.lambda_sem * terms["sem"]
+        self.last_terms = {"total": loss.detach(), **{n: t.detach() for n, t in terms.items()}}
         return loss
 
     def train_step(self) -> float:
@@ -264,9 +275,10 @@ class GaussianTrainer:
             mean_grad = self.grad_accum / self.grad_count.clamp(min=1)
             room = self.knobs.max_gaussians - int(keep.sum())
             split = torch.zeros_like(keep)
+            candidates = keep & (mean_grad > 0)
+            share = int(candidates.sum()) // 10
             if room > 0:
-                candidates = keep & (mean_grad > 0)
-                count = min(room, int(candidates.sum()) // 10)
+                count = min(room, share)
                 if count > 0:
                     score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
                     split[torch.topk(score, count).indices] = True
@@ -288,9 +300,17 @@ class GaussianTrainer:
                     )
                     units.append(unit[split])
             merged, merged_units = Gaussians.cat(parts), torch.cat(units)
+            grown = len(merged)
             if len(merged) > self.knobs.max_gaussians:
                 top = torch.topk(merged.opacity_logits, self.knobs.max_gaussians).indices
                 merged, merged_units = merged[top], merged_units[top]
+            self.last_densify = DensifyStats(
+                step=self.step, before=len(g), pruned=int((~keep).sum()),
+                split=int(split.sum()), clipped=grown - len(merged), after=len(merged),
+                budget=self.knobs.max_gaussians, candidates=int(candidates.sum()),
+                threshold=float(mean_grad[split].min()) if split.any() else None,
+                limit="share" if share <= room else "budget",
+            )  # fmt: skip
             # Offsets restart from zero at the new positions; Adam's moments restart too.
             self._set_parameters(merged, merged.means.clone(), merged_units)
 
