@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -163,21 +164,12 @@ def test_a_run_writes_its_diagnosis_beside_metrics_json(scene_dir: Path, tmp_pat
 
 @pytest.mark.usefixtures("one_torch_thread")
 def test_a_resumed_run_writes_the_uninterrupted_runs_diagnosis(
-    scene_dir: Path, tmp_path: Path
+    scene_dir: Path, tmp_path: Path, interrupt_train: Callable
 ) -> None:
     run_train(_config(scene_dir, tmp_path / "a"), progress=False, render_backend="torch")
     cfg = _config(scene_dir, tmp_path / "b")
-    stops = [("static", 27), ("dynamic", 33)]  # after a densify, between checkpoints
-
-    def interrupt(stage: str, step: int) -> None:
-        if stops and (stage, step) == stops[0]:
-            stops.pop(0)
-            raise KeyboardInterrupt
-
-    for _ in range(2):
-        with pytest.raises(KeyboardInterrupt):
-            run_train(cfg, progress=False, render_backend="torch", checkpoint_every=4,
-                      on_step=interrupt)  # fmt: skip
+    # After a densify-and-prune, between checkpoints (every 4 steps).
+    interrupt_train(cfg, [("static", 27), ("dynamic", 33)])
     run_train(cfg, progress=False, render_backend="torch", checkpoint_every=4)
     a, b = _diagnosis(tmp_path / "a"), _diagnosis(tmp_path / "b")
     assert a[0] == b[0]

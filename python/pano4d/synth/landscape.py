@@ -32,7 +32,7 @@ from pano4d.synth.shading import (
 )
 from pano4d.synth.terrain import FLAT_RADIUS, Terrain
 from pano4d.synth.textures import TiledNoise, fft_noise, normalize, periodic, rgb
-from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint
+from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint, shade_split
 
 CAMERA_HEIGHT = 2.0
 
@@ -259,14 +259,7 @@ class Landscape:
 
     def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
         """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
-        o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
-        rgb_out = torch.empty(d.shape[0], 3)
-        moving = self.moves(hits.label)
-        static = (~moving).nonzero()[:, 0]
-        rgb_out[static] = self.shade_static(o, d[static], hits.subset(static))
-        dyn = moving.nonzero()[:, 0]
-        rgb_out[dyn] = self.moving_shader(o, d[dyn], hits.subset(dyn))(time)
-        return rgb_out
+        return shade_split(self, self.shade_static, o, d, hits, time)
 
     def shade_static(self, o: torch.Tensor, d: torch.Tensor, hits: Hits) -> torch.Tensor:
         """Colour of rays that hit terrain or objects (no time dependence)."""

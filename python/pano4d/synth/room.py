@@ -41,7 +41,7 @@ from pano4d.synth.room_geometry import (
 from pano4d.synth.room_shading import RoomLook
 from pano4d.synth.shading import CLOUD_REPEATS, Sky, cloud_texture
 from pano4d.synth.textures import TiledNoise, fft_noise, normalize, periodic
-from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint
+from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint, shade_split
 
 CAMERA_HEIGHT = 1.5
 GROUND_RADIUS = 900.0  # the exterior plain ends here (the sky sphere is at SKY_DEPTH)
@@ -402,14 +402,7 @@ class Room:
 
     def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
         """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
-        o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
-        rgb_out = torch.empty(d.shape[0], 3)
-        moving = self.moves(hits.label)
-        static = (~moving).nonzero()[:, 0]
-        rgb_out[static] = self.look.static(o, d[static], hits.subset(static))
-        dyn = moving.nonzero()[:, 0]
-        rgb_out[dyn] = self.moving_shader(o, d[dyn], hits.subset(dyn))(time)
-        return rgb_out
+        return shade_split(self, self.look.static, o, d, hits, time)
 
     def moving_shader(
         self, o: torch.Tensor, d: torch.Tensor, hits: Hits

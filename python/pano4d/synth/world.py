@@ -83,3 +83,23 @@ class World(Protocol):
     def metadata(self) -> dict[str, Any]:
         """What gt/views.json records about the world (JSON types)."""
         ...
+
+
+def shade_split(
+    world: World,
+    static: Callable[[torch.Tensor, torch.Tensor, Hits], torch.Tensor],
+    o: torch.Tensor,
+    d: torch.Tensor,
+    hits: Hits,
+    time: int,
+) -> torch.Tensor:
+    """``World.shade`` of every kind: rays that hit what does not move coloured by
+    ``static(o, d, hits)``, the others by ``world.moving_shader`` at ``time``."""
+    o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
+    rgb = torch.empty(d.shape[0], 3)
+    moving = world.moves(hits.label)
+    still = (~moving).nonzero()[:, 0]
+    rgb[still] = static(o, d[still], hits.subset(still))
+    dyn = moving.nonzero()[:, 0]
+    rgb[dyn] = world.moving_shader(o, d[dyn], hits.subset(dyn))(time)
+    return rgb
