@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from test_train import TINY
 
 from pano4d import ply4d, synth
 from pano4d.config import SceneConfig, load_config
@@ -23,14 +24,6 @@ from pano4d.lift.initial import points_in_mask
 from pano4d.lift.pipeline import prepare
 from pano4d.regions import grow, moving_mask
 from pano4d.train import run_train
-
-TINY = {
-    "view_size": 16,
-    "init_stride": 4,
-    "align_iterations": 20,
-    "gaussian_iterations": 12,
-    "max_gaussians": 5000,
-}
 
 DYNAMIC_INSIDE = 0.95  # the least fraction of dynamic Gaussians in the grown moving region
 
