@@ -175,3 +175,29 @@ def test_without_ray_the_command_says_how_to_install_it(
     assert result.exit_code == 2
     output = _unwrapped(result.output)
     assert "pip install 'pano4d[cluster]'" in output and "Traceback" not in output
+
+
+def test_a_gpu_task_renders_on_the_gpu_ray_gave_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """wgpu does not read CUDA_VISIBLE_DEVICES: the task names its GPU's PCI slot instead."""
+    import ray
+
+    from pano4d import batch
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    smi = bin_dir / "nvidia-smi"
+    smi.write_text("#!/bin/sh\necho '0, 00000000:3B:00.0'\necho '1, 00000000:AF:00.0'\n")
+    smi.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.delenv("PANO4D_ADAPTER", raising=False)
+    monkeypatch.setattr(ray, "get_gpu_ids", lambda: [1])
+    assert batch._pin_adapter() == "pci:00000000:AF:00.0"
+    assert os.environ["PANO4D_ADAPTER"] == "pci:00000000:AF:00.0"
+    # The user's own choice stands; a task without a GPU leaves wgpu to pick.
+    monkeypatch.setenv("PANO4D_ADAPTER", "cpu")
+    assert batch._pin_adapter() == "cpu"
+    monkeypatch.delenv("PANO4D_ADAPTER")
+    monkeypatch.setattr(ray, "get_gpu_ids", lambda: [])
+    assert batch._pin_adapter() is None and "PANO4D_ADAPTER" not in os.environ

@@ -24,6 +24,7 @@ import json
 import math
 import os
 import socket
+import subprocess
 import time
 import traceback
 from collections.abc import Sequence
@@ -40,6 +41,9 @@ from rich.text import Text
 from pano4d.config import ConfigError, SceneConfig, config_hash, load_config
 from pano4d.errors import InputError
 from pano4d.fsutil import write_json_atomic
+
+# The rasteriser's adapter choice (splat-core raster/context.rs); read when it first starts.
+ADAPTER_ENV = "PANO4D_ADAPTER"
 
 INSTALL_HINT = "pano4d batch needs Ray: pip install 'pano4d[cluster]' (or: pip install 'ray>=2.60')"
 SCENE_SUFFIXES = (".yaml", ".yml")
@@ -221,6 +225,7 @@ def train_scene(scene: str, backend: str, board: Any, index: int) -> dict[str, A
 
     torch.set_num_threads(cpus)
     os.environ.setdefault("LP_NUM_THREADS", str(cpus))  # lavapipe: stay within the slot
+    record["adapter"] = _pin_adapter()
     from pano4d.train import run_train
 
     record["import_s"] = time.time() - started
@@ -265,6 +270,42 @@ def _assigned_cpus() -> int:
     return max(1, math.floor(cpus))
 
 
+def _pin_adapter() -> str | None:
+    """Point the rasteriser at the GPU Ray gave this task (``PANO4D_ADAPTER=pci:<bus id>``).
+
+    Ray hands a task its GPU through ``CUDA_VISIBLE_DEVICES``, which wgpu does not read: on a
+    machine with several GPUs every scene would otherwise render on the first one. Returns
+    the preference set, or None (no GPU assigned, one set by the user, or no nvidia-smi to
+    name the GPU's slot: then wgpu picks, as ``pano4d train`` does).
+    """
+    import ray
+
+    gpu_ids = ray.get_gpu_ids()
+    if not gpu_ids or os.environ.get(ADAPTER_ENV):
+        return os.environ.get(ADAPTER_ENV)
+    try:
+        listing = subprocess.run(
+            ["nvidia-smi", "--query-gpu=index,pci.bus_id", "--format=csv,noheader"],
+            capture_output=True, text=True, timeout=30, check=True,
+        ).stdout  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+    bus = pci_bus_of_gpu(listing, str(gpu_ids[0]))
+    if bus is not None:
+        os.environ[ADAPTER_ENV] = f"pci:{bus}"
+    return os.environ.get(ADAPTER_ENV)
+
+
+def pci_bus_of_gpu(listing: str, index: str) -> str | None:
+    """The PCI bus id of GPU ``index`` in ``nvidia-smi --query-gpu=index,pci.bus_id
+    --format=csv,noheader`` output (``0, 00000000:3B:00.0`` per line)."""
+    for line in listing.splitlines():
+        fields = [field.strip() for field in line.split(",")]
+        if len(fields) == 2 and fields[0] == index:
+            return fields[1]
+    return None
+
+
 # --- the driver side ---------------------------------------------------------------------
 @dataclass
 class SceneOutcome:
@@ -292,6 +333,7 @@ class SceneOutcome:
         self.ray = {
             "node": result["node"],
             "pid": result["pid"],
+            "adapter": result.get("adapter"),  # PANO4D_ADAPTER as the task ran (None: wgpu's pick)
             "submitted": submitted,
             "started": result["started"],
             "finished": result["finished"],

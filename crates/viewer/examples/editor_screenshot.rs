@@ -38,6 +38,11 @@ fn main() -> Result<(), String> {
         .with_size(egui::vec2(1120.0, 630.0))
         .wgpu()
         .build_eframe(move |_| EditorApp::new(&scene, python));
+    // Opening runs Python on a worker thread.
+    while harness.state().working() {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        harness.step();
+    }
     harness.run();
     if let Some(error) = harness.state().error() {
         return Err(error.to_string());

@@ -77,8 +77,23 @@ fn open_editor(scene: &Path) -> Harness<'static, EditorApp> {
         .with_size(egui::vec2(1100.0, 640.0))
         .wgpu()
         .build_eframe(move |_| EditorApp::new(&scene, python()));
-    harness.run();
+    settle(&mut harness);
     harness
+}
+
+/// Steps the window until Python's open or save has finished (it runs on a worker thread).
+fn settle(harness: &mut Harness<'static, EditorApp>) {
+    let started = Instant::now();
+    while harness.state().working() {
+        assert!(
+            started.elapsed() < Duration::from_secs(120),
+            "{}",
+            harness.state().status()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+        harness.step();
+    }
+    harness.run();
 }
 
 /// A fresh folder with [`SCENE`] and the editor open on it.
@@ -136,6 +151,7 @@ fn screen(harness: &Harness<'static, EditorApp>, u: f64, v: f64) -> Pos2 {
 
 fn save(harness: &mut Harness<'static, EditorApp>) {
     choose(harness, "Save *");
+    settle(harness);
     let status = harness.state().status();
     assert!(status.starts_with("Saved"), "{status}");
 }
@@ -463,4 +479,35 @@ fn closing_with_unsaved_changes_is_refused_once() {
     assert!(close(&mut harness), "a drawn box is not lost silently");
     assert!(harness.state().status().starts_with("Unsaved changes"));
     assert!(!close(&mut harness), "the second close discards");
+}
+
+#[test]
+fn the_window_draws_while_python_opens_and_saves() {
+    let dir = TempDir::new("live");
+    let scene = write_scene(&dir.0);
+    let path = scene.clone();
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(1100.0, 640.0))
+        .wgpu()
+        .build_eframe(move |_| EditorApp::new(&path, python()));
+    // The first frames come before Python has answered: the window shows that it opens.
+    assert!(harness.state().working(), "opening runs on a worker thread");
+    assert!(
+        harness.state().status().starts_with("Opening"),
+        "{}",
+        harness.state().status()
+    );
+    settle(&mut harness);
+    assert_eq!(harness.state().error(), None);
+    choose(&mut harness, "Box");
+    drag_px(&mut harness, [10.0, 10.0], [60.0, 40.0]);
+    choose(&mut harness, "Save *");
+    assert!(harness.state().working(), "saving runs on a worker thread");
+    // A box dragged while the save runs is not taken: what is saved is what was drawn.
+    drag_px(&mut harness, [300.0, 100.0], [360.0, 140.0]);
+    settle(&mut harness);
+    assert!(harness.state().status().starts_with("Saved"));
+    assert_eq!(harness.state().document().unwrap().regions.len(), 2);
+    assert_eq!(read_back(&scene).len(), 2);
+    assert!(!harness.state().unsaved());
 }

@@ -1,7 +1,10 @@
 //! Adapter choice and device creation.
 //!
 //! A real GPU when one is present, else the CPU adapter (Mesa lavapipe). The environment
-//! variable `PANO4D_ADAPTER` forces one: `gpu`, `cpu`, or a substring of the adapter name.
+//! variable `PANO4D_ADAPTER` forces one: `gpu`, `cpu`, `pci:<bus id>` (e.g.
+//! `pci:0000:3b:00.0`, as `nvidia-smi --query-gpu=pci.bus_id` prints it: how `pano4d batch`
+//! puts each scene on the GPU Ray gave it, since wgpu does not read `CUDA_VISIBLE_DEVICES`),
+//! or a substring of the adapter name.
 
 use super::RasterError;
 
@@ -51,12 +54,36 @@ fn is_gpu(info: &wgpu::AdapterInfo) -> bool {
     )
 }
 
+/// Whether two PCI bus ids (`domain:bus:device.function`, hex) name the same slot; the
+/// domain's width differs between tools (`0000:` from Vulkan, `00000000:` from nvidia-smi).
+fn same_pci_slot(a: &str, b: &str) -> bool {
+    fn parse(id: &str) -> Option<(u64, String)> {
+        let id = id.trim().to_lowercase();
+        let (domain, slot) = match id.matches(':').count() {
+            2 => id.split_once(':')?,
+            1 => ("0", id.as_str()),
+            _ => return None,
+        };
+        Some((u64::from_str_radix(domain, 16).ok()?, slot.to_string()))
+    }
+    matches!((parse(a), parse(b)), (Some(x), Some(y)) if x == y)
+}
+
 /// Picks an adapter by the `PANO4D_ADAPTER` preference (None: GPU first, then CPU).
 fn choose(
     adapters: Vec<wgpu::Adapter>,
     preference: Option<&str>,
 ) -> Result<wgpu::Adapter, RasterError> {
-    let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+    let names: Vec<String> = adapters
+        .iter()
+        .map(|a| {
+            let info = a.get_info();
+            match info.device_pci_bus_id.as_str() {
+                "" => info.name,
+                bus => format!("{} (pci:{bus})", info.name),
+            }
+        })
+        .collect();
     let rank = |info: &wgpu::AdapterInfo| match info.device_type {
         wgpu::DeviceType::DiscreteGpu => 0,
         wgpu::DeviceType::IntegratedGpu => 1,
@@ -73,6 +100,10 @@ fn choose(
         Some("cpu") => adapters
             .into_iter()
             .filter(|a| a.get_info().device_type == wgpu::DeviceType::Cpu)
+            .collect(),
+        Some(pci) if pci.starts_with("pci:") => adapters
+            .into_iter()
+            .filter(|a| same_pci_slot(&a.get_info().device_pci_bus_id, &pci[4..]))
             .collect(),
         Some(name) => adapters
             .into_iter()
@@ -136,5 +167,36 @@ impl GpuContext {
             queue,
             adapter: AdapterSummary::from(&info),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pci_slots_match_across_domain_widths_and_case() {
+        assert!(same_pci_slot("0000:3b:00.0", "00000000:3B:00.0"));
+        assert!(same_pci_slot("0000:3b:00.0", "3b:00.0"));
+        assert!(!same_pci_slot("0000:3b:00.0", "0000:3c:00.0"));
+        assert!(!same_pci_slot("0000:3b:00.0", "0001:3b:00.0"));
+        assert!(!same_pci_slot("0000:3b:00.0", "0000:3b:00.1"));
+        // Adapters without PCI information (lavapipe) report an empty id: never a match.
+        assert!(!same_pci_slot("", "0000:3b:00.0"));
+        assert!(!same_pci_slot("", ""));
+    }
+
+    #[test]
+    fn a_pci_preference_without_that_slot_names_what_there_is() {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::PRIMARY;
+        let instance = wgpu::Instance::new(desc);
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+        let error = choose(adapters, Some("pci:00ff:ff:1f.7")).err().unwrap();
+        let text = error.to_string();
+        assert!(
+            text.contains("pci:00ff:ff:1f.7") && text.contains("available"),
+            "{text}"
+        );
     }
 }

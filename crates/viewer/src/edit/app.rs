@@ -1,6 +1,7 @@
 //! The region editor window: the panorama (equirect or perspective), a toolbar of tools,
 //! the list of regions with the selected one's name, shape and motion, and save / undo /
-//! redo / preview. Drawing never blocks on Python except opening and saving.
+//! redo / preview. Drawing never waits for Python: opening, saving and the preview run on
+//! worker threads (a save holds edits, not the window, until scene.yaml is written).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -10,15 +11,16 @@ use eframe::egui::{self, Color32, Key, PointerButton, Pos2, Rect, Sense, Stroke}
 use glam::{DVec2, DVec3};
 use splat_core::camera::equirect_to_dir;
 
-use super::bridge::{regions_json, Python};
+use super::bridge::{regions_json, Python, Saved};
 use super::document::{
     direction_of_drag, unwrap_near, Document, Motion, PixelBox, Region, Shape, DEFAULT_MOTION,
 };
 use super::history::History;
-use super::preview::{Preview, PreviewJob};
+use super::preview::{self, Preview};
 use super::views::{
     compose, region_colour, PanoramaView, PerspectiveView, Pyramid, Tint, View, ViewKind,
 };
+use super::worker::Worker;
 use crate::camera::{MAX_FOV_DEG, MIN_FOV_DEG};
 
 /// What a primary drag or click in the view does.
@@ -138,7 +140,10 @@ pub struct EditorApp {
     labels: (u64, Vec<u8>),
     texture: Option<egui::TextureHandle>,
     composed: Option<ComposeKey>,
-    preview_job: Option<PreviewJob>,
+    opening: Option<Worker<Loaded>>,
+    /// The save in flight and the regions it writes.
+    saving: Option<(Worker<Saved>, Vec<Region>)>,
+    preview_job: Option<Worker<Preview>>,
     playback: Option<(Preview, Instant)>,
     view_rect: Rect,
     /// A close was refused once for unsaved changes: the next one closes.
@@ -146,16 +151,21 @@ pub struct EditorApp {
 }
 
 impl EditorApp {
-    /// Opens `scene` through `python` (`pano4d regions show`); failures are shown in the
-    /// window.
+    /// Opens `scene` through `python` (`pano4d regions show`, on a worker thread); failures
+    /// are shown in the window.
     pub fn new(scene: &Path, python: Python) -> Self {
-        let mut app = Self {
+        let work = WorkDir::new();
+        let opening = {
+            let (python, scene, work) = (python.clone(), scene.to_path_buf(), work.0.clone());
+            Worker::start(move || open(&python, &scene, &work))
+        };
+        Self {
             python,
             scene: scene.to_path_buf(),
-            work: WorkDir::new(),
+            work,
             loaded: None,
             error: None,
-            status: String::new(),
+            status: format!("Opening {}…", scene.display()),
             tool: Tool::Box,
             brush_px: 24.0,
             click_size: 128.0,
@@ -168,39 +178,40 @@ impl EditorApp {
             labels: (u64::MAX, Vec::new()),
             texture: None,
             composed: None,
+            opening: Some(opening),
+            saving: None,
             preview_job: None,
             playback: None,
             view_rect: Rect::NOTHING,
             close_warned: false,
+        }
+    }
+
+    fn poll_open(&mut self, ctx: &egui::Context) {
+        let Some(job) = &self.opening else {
+            return;
         };
-        match app.open() {
-            Ok(loaded) => {
-                app.status = format!(
+        match job.poll() {
+            None => {
+                self.status = format!("Opening {}… {:.0} s", self.scene.display(), job.seconds());
+                ctx.request_repaint_after(std::time::Duration::from_millis(200));
+            }
+            Some(Ok(loaded)) => {
+                self.status = format!(
                     "{} region(s); {}×{} panorama",
                     loaded.doc.regions.len(),
                     loaded.doc.width,
                     loaded.doc.height
                 );
-                app.loaded = Some(loaded);
+                self.loaded = Some(loaded);
+                self.opening = None;
             }
-            Err(e) => app.error = Some(e),
+            Some(Err(e)) => {
+                self.status.clear();
+                self.error = Some(e);
+                self.opening = None;
+            }
         }
-        app
-    }
-
-    fn open(&self) -> Result<Loaded, String> {
-        let opened = self.python.show(&self.scene, &self.work.0)?;
-        let doc = opened.document()?;
-        let image = image::open(&opened.display)
-            .map_err(|e| format!("cannot read {}: {e}", opened.display.display()))?
-            .into_rgb8();
-        Ok(Loaded {
-            history: History::new(doc.regions.clone()),
-            saved: doc.regions.clone(),
-            panorama: Pyramid::new(image),
-            frames: opened.frames,
-            doc,
-        })
     }
 
     // --- what tests and the screenshot read -------------------------------------------
@@ -262,6 +273,11 @@ impl EditorApp {
     pub fn pixel_at(&self, p: Pos2) -> Option<DVec2> {
         let (w, h) = self.size();
         self.view().to_pixel(self.view_rect, p, w, h)
+    }
+
+    /// Whether the scene is being opened or saved (the window draws; edits wait).
+    pub fn working(&self) -> bool {
+        self.opening.is_some() || self.saving.is_some()
     }
 
     /// Whether a preview is being rendered or played.
@@ -356,24 +372,53 @@ impl EditorApp {
         self.changed();
     }
 
-    /// Writes scene.yaml (and painted masks beside it) through Python.
+    /// Starts writing scene.yaml (and painted masks beside it) through Python.
     pub fn save(&mut self) {
         let Some(loaded) = &mut self.loaded else {
             return;
         };
+        if self.saving.is_some() {
+            return;
+        }
         loaded.history.commit(&loaded.doc.regions);
-        let result = regions_json(&loaded.doc, &self.work.0)
-            .and_then(|json| self.python.save(&self.scene, &json));
+        match regions_json(&loaded.doc, &self.work.0) {
+            Ok(json) => {
+                let (python, scene) = (self.python.clone(), self.scene.clone());
+                let job = Worker::start(move || python.save(&scene, &json));
+                self.saving = Some((job, loaded.doc.regions.clone()));
+                self.status = "Saving…".into();
+            }
+            Err(e) => self.status = format!("Not saved: {e}"),
+        }
+    }
+
+    fn poll_save(&mut self, ctx: &egui::Context) {
+        let (Some((job, _)), Some(loaded)) = (&self.saving, &mut self.loaded) else {
+            return;
+        };
+        let result = match job.poll() {
+            None => {
+                self.status = format!("Saving… {:.0} s", job.seconds());
+                ctx.request_repaint_after(std::time::Duration::from_millis(100));
+                return;
+            }
+            Some(result) => result,
+        };
+        let Some((_, written)) = self.saving.take() else {
+            return;
+        };
         match result {
             Ok(saved) => {
+                // Edits wait while a save runs, so the regions are still those written.
+                debug_assert!(loaded.doc.regions == written);
                 // Painted masks now have files beside scene.yaml, in region order.
-                let mut written = saved.masks.iter();
+                let mut masks = saved.masks.iter();
                 for region in &mut loaded.doc.regions {
                     if let Shape::Mask {
                         file: file @ None, ..
                     } = &mut region.shape
                     {
-                        *file = written
+                        *file = masks
                             .next()
                             .and_then(|p| p.file_name())
                             .map(|n| n.to_string_lossy().into_owned());
@@ -398,12 +443,11 @@ impl EditorApp {
             .and_then(|()| regions_json(&loaded.doc, &staging));
         match json {
             Ok(json) => {
-                self.preview_job = Some(PreviewJob::start(
-                    self.python.clone(),
-                    self.scene.clone(),
-                    json,
-                    self.work.0.join("preview"),
-                ));
+                let (python, scene) = (self.python.clone(), self.scene.clone());
+                let out = self.work.0.join("preview");
+                self.preview_job = Some(Worker::start(move || {
+                    preview::render(&python, &scene, &json, out)
+                }));
                 self.playback = None;
                 self.status = "Rendering the preview…".into();
             }
@@ -417,10 +461,7 @@ impl EditorApp {
         };
         match job.poll() {
             None => {
-                self.status = format!(
-                    "Rendering the preview… {:.0} s",
-                    job.started.elapsed().as_secs_f64()
-                );
+                self.status = format!("Rendering the preview… {:.0} s", job.seconds());
                 ctx.request_repaint_after(std::time::Duration::from_millis(200));
             }
             Some(Ok(preview)) => {
@@ -429,7 +470,7 @@ impl EditorApp {
                     preview.frames.len(),
                     preview.fps,
                     preview.seconds,
-                    job.started.elapsed().as_secs_f64()
+                    job.seconds()
                 );
                 self.playback = Some((preview, Instant::now()));
                 self.preview_job = None;
@@ -512,7 +553,7 @@ impl EditorApp {
 
     // --- input ---------------------------------------------------------------------------
     fn handle_keys(&mut self, ctx: &egui::Context) {
-        if ctx.egui_wants_keyboard_input() {
+        if ctx.egui_wants_keyboard_input() || self.working() {
             return;
         }
         let (undo, redo, save, delete) = ctx.input(|i| {
@@ -576,6 +617,10 @@ impl EditorApp {
                     }
                 }
             }
+        }
+        if self.working() {
+            // Looking around goes on while a save runs; the regions wait for it.
+            return;
         }
         let view = self.view();
         let pixel = |p: Pos2| view.to_pixel(rect, p, w, h);
@@ -982,6 +1027,15 @@ impl EditorApp {
             });
             return;
         }
+        if self.opening.is_some() {
+            ui.scope_builder(egui::UiBuilder::new().max_rect(rect.shrink(16.0)), |ui| {
+                ui.horizontal(|ui| {
+                    ui.spinner();
+                    ui.label(&self.status);
+                });
+            });
+            return;
+        }
         let (w, h) = self.size();
         if self.panorama_view.is_none() && self.loaded.is_some() {
             self.panorama_view = Some(PanoramaView::fit(rect, w, h));
@@ -996,6 +1050,23 @@ impl EditorApp {
         self.draw_image(ui.ctx(), &painter, rect);
         self.draw_overlays(&painter, rect, response.hover_pos());
     }
+}
+
+/// Reads `scene` as the editor shows it: `pano4d regions show` writes the display panorama
+/// and the masks into `work`; the pyramid is built here, off the UI thread too.
+fn open(python: &Python, scene: &Path, work: &Path) -> Result<Loaded, String> {
+    let opened = python.show(scene, work)?;
+    let doc = opened.document()?;
+    let image = image::open(&opened.display)
+        .map_err(|e| format!("cannot read {}: {e}", opened.display.display()))?
+        .into_rgb8();
+    Ok(Loaded {
+        history: History::new(doc.regions.clone()),
+        saved: doc.regions.clone(),
+        panorama: Pyramid::new(image),
+        frames: opened.frames,
+        doc,
+    })
 }
 
 /// A polyline with an arrowhead at its end.
@@ -1042,17 +1113,24 @@ fn cap_rim(centre: DVec3, radius: f64, width: u32, height: u32, u_near: f64) -> 
 impl eframe::App for EditorApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
+        self.poll_open(&ctx);
+        self.poll_save(&ctx);
         self.guard_close(&ctx);
         self.handle_keys(&ctx);
         self.poll_preview(&ctx);
         if self.playback.is_some() {
             ctx.request_repaint();
         }
-        egui::Panel::top("editor-tools").show(ui, |ui| self.toolbar(ui));
+        let editable = !self.working();
+        egui::Panel::top("editor-tools").show(ui, |ui| {
+            ui.add_enabled_ui(editable, |ui| self.toolbar(ui));
+        });
         egui::Panel::right("editor-regions")
             .resizable(true)
             .show(ui, |ui| {
-                egui::ScrollArea::vertical().show(ui, |ui| self.regions_panel(ui));
+                ui.add_enabled_ui(editable, |ui| {
+                    egui::ScrollArea::vertical().show(ui, |ui| self.regions_panel(ui));
+                });
             });
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)

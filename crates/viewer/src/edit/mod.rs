@@ -6,7 +6,8 @@
 //! - [`views`]: the equirect and perspective views and the image composed for them.
 //! - [`bridge`]: `pano4d regions show | save | preview`, the Python side that owns
 //!   scene.yaml.
-//! - [`preview`]: "Animate preview" on a worker thread.
+//! - [`preview`]: "Animate preview": the flow animator's loop.
+//! - [`worker`]: opening, saving and the preview off the UI thread.
 //! - [`app`]: the editor window.
 
 pub mod app;
@@ -15,3 +16,4 @@ pub mod document;
 pub mod history;
 pub mod preview;
 pub mod views;
+pub mod worker;

@@ -2,9 +2,7 @@
 //! they are drawn (saved or not), on a worker thread, then played in place as a loop.
 
 use std::path::PathBuf;
-use std::sync::mpsc;
-use std::thread;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use super::bridge::{Python, RegionJson};
 use super::views::Pyramid;
@@ -27,38 +25,9 @@ impl Preview {
     }
 }
 
-/// A preview being rendered.
-pub struct PreviewJob {
-    receiver: mpsc::Receiver<Result<Preview, String>>,
-    pub started: Instant,
-}
-
-impl PreviewJob {
-    /// Starts `pano4d regions preview` for `regions` of `scene`; frames go to `out`.
-    pub fn start(python: Python, scene: PathBuf, regions: Vec<RegionJson>, out: PathBuf) -> Self {
-        let (sender, receiver) = mpsc::channel();
-        thread::spawn(move || {
-            let result = render(&python, &scene, &regions, out);
-            // The editor may have closed or started another preview meanwhile.
-            let _ = sender.send(result);
-        });
-        Self {
-            receiver,
-            started: Instant::now(),
-        }
-    }
-
-    /// The finished preview or its error; None while it runs.
-    pub fn poll(&self) -> Option<Result<Preview, String>> {
-        match self.receiver.try_recv() {
-            Ok(result) => Some(result),
-            Err(mpsc::TryRecvError::Empty) => None,
-            Err(mpsc::TryRecvError::Disconnected) => Some(Err("the preview worker stopped".into())),
-        }
-    }
-}
-
-fn render(
+/// Runs `pano4d regions preview` for `regions` of `scene` (frames go to `out`) and reads
+/// the frames back; on a [`super::worker::Worker`].
+pub fn render(
     python: &Python,
     scene: &std::path::Path,
     regions: &[RegionJson],
