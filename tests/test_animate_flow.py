@@ -266,7 +266,7 @@ def test_run_animate_writes_frames_video_metrics_and_resumes(tmp_path: Path) -> 
         path.unlink()
     (result.folder / "done.json").unlink()
     resumed = run_animate(cfg, progress=False)
-    assert not resumed.skipped
+    assert not resumed.skipped and resumed.resumed_at == 2  # not from frame 0
     assert [p.read_bytes() for p in resumed.frames] == written
 
 

@@ -39,6 +39,7 @@ from rich.table import Table
 from rich.text import Text
 
 from pano4d.config import ConfigError, SceneConfig, config_hash, load_config
+from pano4d.errors import InputError
 from pano4d.fsutil import write_json_atomic
 
 # The rasteriser's adapter choice (splat-core raster/context.rs); read when it first starts.
@@ -53,7 +54,7 @@ LOG_NAME = "batch.log"  # in each scene's output folder: the worker's output and
 MAX_RETRIES = 1
 
 
-class BatchError(ValueError):
+class BatchError(InputError, ValueError):
     """Bad input for the whole batch (missing scene files, impossible resources, no Ray)."""
 
 
@@ -130,7 +131,7 @@ def resume_point(cfg: SceneConfig) -> str | None:
     from pano4d.lift.checkpoints import Checkpoints
 
     out = Path(cfg.output)
-    ckpt = Checkpoints(out / "checkpoints", config_hash(cfg))
+    ckpt = Checkpoints.for_config(out / "checkpoints", cfg)
     frames = cfg.animate.frames
     dynamic = ckpt.load("dynamic")
     if dynamic is not None:

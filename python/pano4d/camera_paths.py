@@ -13,10 +13,15 @@ import torch
 
 from pano4d import images, ply4d
 from pano4d.camera import Camera
+from pano4d.errors import InputError
 from pano4d.gaussians import Gaussians
 from pano4d.render import render
 
 DEFAULT_FOV_DEG = 90.0
+
+
+class RenderArgumentError(InputError, ValueError):
+    """A --camera, --path or --time value that ``pano4d render`` cannot use."""
 
 
 def parse_camera(spec: str | None, width: int, height: int) -> Camera:
@@ -31,24 +36,31 @@ def parse_camera(spec: str | None, width: int, height: int) -> Camera:
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
-        raise ValueError(f"--camera is neither a JSON file nor JSON text: {e}") from e
+        raise RenderArgumentError(f"--camera is neither a JSON file nor JSON text: {e}") from e
     if not isinstance(data, dict):
-        raise ValueError(f"--camera must be a JSON object, got {type(data).__name__}")
-    if "K" in data:
-        return Camera.from_dict({"width": width, "height": height, **data})
+        raise RenderArgumentError(f"--camera must be a JSON object, got {type(data).__name__}")
     missing = {"position", "forward"} - set(data)
-    if missing:
-        raise ValueError(
+    if missing and "K" not in data:
+        raise RenderArgumentError(
             f"--camera needs {sorted(missing)} (or K and world_to_cam); got keys {sorted(data)}"
         )
-    return Camera.from_fov(
-        float(data.get("fov_deg", DEFAULT_FOV_DEG)),
-        width,
-        height,
-        data["position"],
-        data["forward"],
-        data.get("up", (0.0, 0.0, 1.0)),
-    )
+    for key in ("position", "forward", "up"):
+        value = data.get(key, (0.0, 0.0, 0.0))
+        if not (isinstance(value, list | tuple) and len(value) == 3):
+            raise RenderArgumentError(f"--camera {key} must be a 3-vector [x, y, z], got {value}")
+    try:
+        if "K" in data:
+            return Camera.from_dict({"width": width, "height": height, **data})
+        return Camera.from_fov(
+            float(data.get("fov_deg", DEFAULT_FOV_DEG)),
+            width,
+            height,
+            data["position"],
+            data["forward"],
+            data.get("up", (0.0, 0.0, 1.0)),
+        )
+    except (ValueError, TypeError) as e:  # a value of the wrong shape or type
+        raise RenderArgumentError(f"--camera {text.strip()}: {e}") from e
 
 
 def load_gaussians(scene: Path, time: int) -> tuple[Gaussians, int]:
@@ -57,7 +69,7 @@ def load_gaussians(scene: Path, time: int) -> tuple[Gaussians, int]:
         f = ply4d.open(scene)
         return f.at(time), f.num_times
     if time != 0:
-        raise ValueError(f"{scene} is a single .ply; --time must be 0, got {time}")
+        raise RenderArgumentError(f"{scene} is a single .ply; --time must be 0, got {time}")
     return ply4d.read_ply(scene), 1
 
 
@@ -108,7 +120,7 @@ def path_cameras(kind: str, width: int, height: int, frames: int, radius: float)
         return turntable(width, height, frames)
     if kind == "fly-through":
         return fly_through(width, height, frames, radius)
-    raise ValueError(f"--path must be 'turntable' or 'fly-through', got {kind!r}")
+    raise RenderArgumentError(f"--path must be 'turntable' or 'fly-through', got {kind!r}")
 
 
 def render_path(

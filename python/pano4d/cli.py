@@ -1,18 +1,79 @@
-"""The ``pano4d`` command line. Each command is a thin layer over the library."""
+"""The ``pano4d`` command line. Each command is a thin layer over the library.
+
+Every command runs under one error policy (``Commands.invoke``): bad input
+(``pano4d.errors.InputError``) and operating-system errors (a missing file, a full disk) print
+one line naming the file, key or value and what was expected, exit code 2; any other
+exception is a bug in pano4d: one line, exit code 1, and the traceback with
+``pano4d --debug <command>``.
+"""
 
 from __future__ import annotations
 
 import sys
+import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, Literal, NoReturn
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+from typer.core import TyperGroup
 
+from pano4d.errors import InputError
+from pano4d.lift.checkpoints import CHECKPOINT_EVERY
 from pano4d.region_cli import app as regions_app
 
+console = Console(stderr=True)
+Backend = Literal["wgpu", "torch"]
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """Print a clear error (no traceback) and exit with ``code`` (2: bad input)."""
+    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=code)
+
+
+def describe(error: OSError) -> str:
+    """An operating-system error as "file: what happened"."""
+    if error.filename is None:
+        return str(error)
+    return f"{error.filename}: {error.strerror or error}"
+
+
+@contextmanager
+def reported_errors(ctx: typer.Context) -> Iterator[None]:
+    """Known errors → one line and exit 2; anything else → one line and exit 1, with the
+    traceback under ``--debug``."""
+    try:
+        yield
+    except (typer.Exit, typer.Abort, typer.TyperException):
+        raise  # typer's own exits and usage errors
+    except InputError as error:
+        fail(str(error))
+    except OSError as error:
+        fail(describe(error))
+    except Exception as error:
+        if ctx.meta.get("pano4d.debug"):
+            traceback.print_exception(error)
+            hint = "the traceback is above"
+        else:
+            hint = f"run `pano4d --debug {ctx.invoked_subcommand} …` for the traceback"
+        what = " ".join(f"{type(error).__name__}: {error}".split())
+        fail(f"internal error (a bug in pano4d; please report it): {what}; {hint}", code=1)
+
+
+class Commands(TyperGroup):
+    """The command group: every command runs under ``reported_errors``."""
+
+    def invoke(self, ctx: typer.Context) -> Any:
+        with reported_errors(ctx):
+            return super().invoke(ctx)
+
+
 app = typer.Typer(
+    cls=Commands,
     name="pano4d",
     help=(
         "Turn one 360° panorama into a 4D Gaussian scene you can walk through and watch move.\n\n"
@@ -23,14 +84,17 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-console = Console(stderr=True)
 app.add_typer(regions_app)
 
 
-def fail(message: str) -> None:
-    """Print a clear error (no traceback) and exit with status 2."""
-    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
-    raise typer.Exit(code=2)
+@app.callback()
+def options(
+    ctx: typer.Context,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an internal error.")
+    ] = False,
+) -> None:
+    ctx.meta["pano4d.debug"] = debug
 
 
 @app.command()
@@ -46,10 +110,9 @@ def init(
     """Write a commented example scene.yaml: every key, its default and its meaning."""
     from pano4d import config
 
-    try:
-        written = config.write_example(path, panorama=panorama, force=force)
-    except FileExistsError:
+    if path.exists() and not force:
         fail(f"{path} exists; pass --force to overwrite it")
+    written = config.write_example(path, panorama=panorama, force=force)
     console.print(f"wrote {written} — edit `panorama` and `regions`, then run pano4d train {path}")
 
 
@@ -57,27 +120,30 @@ def init(
 def check(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml to validate.")],
 ) -> None:
-    """Validate a scene.yaml and print what it resolves to (paths, preset knobs)."""
+    """Validate a scene.yaml, its panorama and regions; print what it resolves to."""
     from pano4d import config
+    from pano4d.images import read_panorama
+    from pano4d.regions import region_masks
 
-    try:
-        cfg = config.load_config(scene)
-    except config.ConfigError as e:
-        fail(str(e))
+    cfg = config.load_config(scene)
+    height, width = read_panorama(cfg.panorama).shape[:2]
+    region_masks(cfg, width, height)  # every region on the panorama, every mask readable
     console.print(
         f"[green]ok[/] {scene}: panorama {cfg.panorama}, {len(cfg.regions)} region(s), "
         f"preset {cfg.preset}"
     )
-    from pano4d.images import ImageError, image_size
-
-    try:
-        width, _ = image_size(cfg.panorama)
-    except ImageError as e:
-        fail(str(e))
     preset = cfg.resolved_preset().model_dump()
     for key, value in cfg.resolved_preset(width).model_dump().items():
         note = f"  (the preset's {preset[key]}, capped at the panorama's pixel)"
         console.print(f"  {key} = {value}{note if value != preset[key] else ''}")
+
+
+def synth_height(width: int, height: int | None) -> int:
+    """The height of a synthetic panorama (default width / 2); refuses all but 2:1."""
+    height = height if height is not None else width // 2
+    if width != 2 * height:
+        fail(f"--width must be twice --height for an equirect panorama, got {width}x{height}")
+    return height
 
 
 @app.command()
@@ -85,7 +151,7 @@ def synth(
     out: Annotated[Path, typer.Argument(help="Output folder.")],
     width: Annotated[int, typer.Option(help="Panorama width (height is width / 2).")] = 2048,
     height: Annotated[int | None, typer.Option(help="Panorama height (default width / 2).")] = None,
-    frames: Annotated[int, typer.Option(help="Number of animated frames L.")] = 14,
+    frames: Annotated[int, typer.Option(min=1, help="Number of animated frames L.")] = 14,
     seed: Annotated[int, typer.Option(help="Random seed: same seed, same scene.")] = 0,
     views: Annotated[int, typer.Option(help="Ground-truth novel views to render.")] = 8,
     kind: Annotated[
@@ -96,25 +162,10 @@ def synth(
     from pano4d import synth as synth_mod
     from pano4d.synth.scene import SCENE_KINDS
 
-    height = height if height is not None else width // 2
-    if width != 2 * height:
-        fail(f"--width must be twice --height for an equirect panorama, got {width}x{height}")
-    if frames < 1:
-        fail(f"--frames must be at least 1, got {frames}")
     if kind not in SCENE_KINDS:
         fail(f"--kind must be one of {', '.join(SCENE_KINDS)}, got {kind!r}")
-    path = synth_mod.run_synth(out, width, height, frames, seed, views, kind)
+    path = synth_mod.run_synth(out, width, synth_height(width, height), frames, seed, views, kind)
     console.print(f"wrote {path}")
-
-
-def load_scene_config(scene: Path):  # type: ignore[no-untyped-def]
-    """The validated scene.yaml, or a clear error and exit."""
-    from pano4d import config
-
-    try:
-        return config.load_config(scene)
-    except config.ConfigError as e:
-        fail(str(e))
 
 
 @app.command()
@@ -122,13 +173,10 @@ def animate(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
 ) -> None:
     """Animating phase alone: the panoramic video in OUTPUT/animate (resumes after a kill)."""
-    from pano4d.animate.pipeline import AnimateError, run_animate
+    from pano4d.animate.pipeline import run_animate
+    from pano4d.config import load_config
 
-    cfg = load_scene_config(scene)
-    try:
-        result = run_animate(cfg)
-    except AnimateError as e:
-        fail(str(e))
+    result = run_animate(load_config(scene))
     console.print(f"[green]animate:[/] {len(result.frames)} frames in {result.folder}")
 
 
@@ -139,10 +187,11 @@ def evaluate(
     """Measure an animation: seam, static-region, motion, flicker and loop figures."""
     from pano4d import metrics
     from pano4d.animate.pipeline import animate_folder, print_metrics
+    from pano4d.config import load_config
     from pano4d.images import read_panorama
     from pano4d.regions import build_regions
 
-    cfg = load_scene_config(scene)
+    cfg = load_config(scene)
     frames = animate_folder(cfg) / "frames"
     if not any(frames.glob("*.png")) and not any(frames.glob("*.exr")):
         fail(f"no frames in {frames}; run `pano4d animate {scene}` first")
@@ -160,10 +209,7 @@ def export(
     """Write one timestamp (static + dynamic Gaussians) as a plain 3DGS .ply any tool opens."""
     from pano4d import ply4d
 
-    try:
-        ply4d.export(scene, time, out)
-    except (OSError, ValueError, IndexError) as e:
-        fail(f"{scene}: {e}")
+    ply4d.export(scene, time, out)
     console.print(f"wrote {out} (time index {time})")
 
 
@@ -176,8 +222,8 @@ def info() -> None:
     console.print(f"pano4d {pano4d.__version__}")
     try:
         adapter = adapter_info()
-    except RuntimeError as e:
-        fail(f"no wgpu adapter: {e}\n(the torch backend still works: backend='torch')")
+    except RuntimeError as e:  # the machine has no adapter pano4d can use: its setup to fix
+        raise InputError(f"no wgpu adapter: {e} (the torch backend still works)") from e
     for key, value in adapter.items():
         console.print(f"  {key}: {value}")
 
@@ -201,34 +247,35 @@ def render_command(
     ] = None,
     frames: Annotated[int, typer.Option(help="Video length in frames (--path).")] = 120,
     fps: Annotated[float, typer.Option(help="Video frame rate (--path).")] = 30.0,
-    backend: Annotated[str, typer.Option(help="wgpu | torch.")] = "wgpu",
+    backend: Annotated[Backend, typer.Option(help="Rasteriser.")] = "wgpu",
 ) -> None:
     """Render test views of a scene headless, through the same rasteriser as training."""
     from pano4d import camera_paths
 
-    try:
-        if path is None:
-            cam = camera_paths.parse_camera(camera, width, height)
-            camera_paths.render_still(scene, cam, time, out, backend=backend)
-        else:
-            camera_paths.render_path(scene, path, out, width, height, frames, fps, backend=backend)
-    except (OSError, ValueError, IndexError, RuntimeError) as e:
-        fail(str(e))
+    if path is None:
+        cam = camera_paths.parse_camera(camera, width, height)
+        camera_paths.render_still(scene, cam, time, out, backend=backend)
+    else:
+        camera_paths.render_path(scene, path, out, width, height, frames, fps, backend=backend)
     console.print(f"wrote {out}")
 
 
 @app.command()
 def train(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
-    backend: Annotated[str, typer.Option(help="Rasteriser: wgpu | torch.")] = "wgpu",
+    backend: Annotated[Backend, typer.Option(help="Rasteriser.")] = "wgpu",
+    checkpoint_every: Annotated[
+        int, typer.Option(min=1, help="Optimisation steps between checkpoints.")
+    ] = CHECKPOINT_EVERY,
 ) -> None:
     """Both phases end to end: animate, align depth, fit Gaussians, write OUTPUT/scene.ply4d.
 
     Checkpoints after every stage; run the same command again to resume after a kill."""
+    from pano4d.config import load_config
     from pano4d.train import run_train
 
-    cfg = load_scene_config(scene)
-    metrics = run_train(cfg, render_backend=backend)
+    cfg = load_config(scene)
+    metrics = run_train(cfg, render_backend=backend, checkpoint_every=checkpoint_every)
     console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
     console.print_json(data=metrics)
 
@@ -259,14 +306,9 @@ def batch(
 
     Finished scenes are skipped, a scene killed half-way resumes from its checkpoints, a
     failed scene does not stop the others. Needs Ray: pip install 'pano4d[cluster]'."""
-    from pano4d.batch import BatchError, batch_table, run_batch
+    from pano4d.batch import batch_table, run_batch
 
-    try:
-        result = run_batch(
-            scenes, report, address, gpus_per_scene, cpus_per_scene, backend, console
-        )
-    except BatchError as e:
-        fail(str(e))
+    result = run_batch(scenes, report, address, gpus_per_scene, cpus_per_scene, backend, console)
     # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
     table_console = console if console.is_terminal else Console(stderr=True, width=160)
     table_console.print(batch_table(result))
@@ -279,13 +321,14 @@ def batch(
 def demo(
     out: Annotated[Path, typer.Argument(help="Output folder.")] = Path("demo"),
     width: Annotated[int, typer.Option(help="Panorama width.")] = 1024,
-    frames: Annotated[int, typer.Option(help="Number of frames.")] = 8,
+    frames: Annotated[int, typer.Option(min=2, help="Number of frames.")] = 8,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-    preset: Annotated[str, typer.Option(help="draft | balanced | max.")] = "draft",
+    preset: Annotated[Literal["draft", "balanced", "max"], typer.Option()] = "draft",
 ) -> None:
     """The main job on the embedded defaults (no weights): synth → animate → train → previews."""
     from pano4d.train import demo as run_demo
 
+    synth_height(width, None)
     metrics = run_demo(out, width=width, frames=frames, seed=seed, preset=preset)
     console.print(f"[green]demo:[/] scene, previews and metrics in {out / 'output'}")
     console.print_json(data=metrics)

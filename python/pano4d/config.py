@@ -28,6 +28,7 @@ from pydantic import (
     model_validator,
 )
 
+from pano4d.errors import InputError
 from pano4d.fsutil import write_text_atomic
 
 PathLike = str | os.PathLike[str]
@@ -75,7 +76,7 @@ PRESETS: dict[str, dict[str, int | float | bool]] = {
 }
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError, ValueError):
     """An invalid scene.yaml; the message has one line per problem."""
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 
 PathLike = str | os.PathLike[str]
@@ -34,7 +35,7 @@ PNG_ZLIB_LEVEL = 3
 _PNG_IEND = b"IEND\xaeB`\x82"
 
 
-class ImageError(ValueError):
+class ImageError(InputError, ValueError):
     """An image file that is missing, unreadable, or not what the pipeline needs."""
 
 
@@ -207,8 +208,11 @@ def write_image(path: PathLike, image: np.ndarray, bits: int | None = None) -> N
         if out is None:
             raise ImageError(f"{path}: no writer for {suffix}: {_oiio_error()}")
         try:
-            if not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(data)):
-                raise ImageError(f"{path}: write failed: {out.geterror()}")
+            written = out.open(str(tmp), spec) and out.write_image(np.ascontiguousarray(data))
+            # The PNG writer reports a failed write (a full disk) only through geterror().
+            error = out.geterror()
+            if not written or error:
+                raise ImageError(f"{path}: write failed: {' '.join(error.split()[:40])}")
         finally:
             out.close()
 

@@ -2,25 +2,31 @@
 
 The reading and writing happen in Rust (``pano4d._core``); this module converts between
 its float32 numpy arrays and :class:`~pano4d.gaussians.Gaussians`. Format errors raise
-``ValueError`` and operating-system errors ``OSError``, both with the Rust message.
+``FormatError`` (a ``ValueError``) and operating-system errors ``OSError``, both with the
+Rust message, which names the file; a timestamp out of range raises ``TimeIndexError``.
 Every write is atomic (temporary file in the same folder, fsync, rename).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from pano4d import __version__, _core
+from pano4d.errors import InputError
 from pano4d.gaussians import Gaussians
 
 __all__ = [
+    "FormatError",
     "Ply4dFile",
     "Ply4dWriter",
     "Scene4D",
+    "TimeIndexError",
     "export",
     "open",
     "read",
@@ -32,9 +38,29 @@ __all__ = [
 PathLike = str | os.PathLike[str]
 
 
+class FormatError(InputError, ValueError):
+    """A .ply or .ply4d file that does not hold what its format says."""
+
+
+class TimeIndexError(InputError, IndexError):
+    """A timestamp index the scene does not have."""
+
+
+@contextlib.contextmanager
+def _format_errors() -> Iterator[None]:
+    """The Rust reader's ValueError (its message names the file) as a FormatError."""
+    try:
+        yield
+    except FormatError:
+        raise
+    except ValueError as error:
+        raise FormatError(str(error)) from error
+
+
 def read_ply(path: PathLike) -> Gaussians:
     """Read a standard 3DGS ``.ply`` or a SuperSplat ``.compressed.ply`` (CPU tensors)."""
-    return Gaussians.from_numpy(_core.read_ply(os.fspath(path)))
+    with _format_errors():
+        return Gaussians.from_numpy(_core.read_ply(os.fspath(path)))
 
 
 def write_ply(path: PathLike, g: Gaussians) -> None:
@@ -86,7 +112,7 @@ class Scene4D:
 
 def _check_time(t: int, num_times: int) -> None:
     if not 0 <= t < num_times:
-        raise IndexError(f"timestamp index {t} out of range: the scene has {num_times}")
+        raise TimeIndexError(f"timestamp index {t} out of range: the scene has {num_times}")
 
 
 def _meta_json(
@@ -190,8 +216,9 @@ class Ply4dFile:
 
     def __init__(self, path: PathLike) -> None:
         self.path = os.fspath(path)
-        self._reader = _core.Ply4dReader(self.path)
-        self.header: dict[str, Any] = json.loads(self._reader.header_json())
+        with _format_errors():
+            self._reader = _core.Ply4dReader(self.path)
+            self.header: dict[str, Any] = json.loads(self._reader.header_json())
 
     @property
     def num_times(self) -> int:
@@ -202,25 +229,30 @@ class Ply4dFile:
         return list(self.header["timestamps"])
 
     def static(self) -> Gaussians:
-        return Gaussians.from_numpy(self._reader.read_static())
+        with _format_errors():
+            return Gaussians.from_numpy(self._reader.read_static())
 
     def dynamic(self, t: int) -> Gaussians:
         _check_time(t, self.num_times)
-        return Gaussians.from_numpy(self._reader.read_dynamic(t))
+        with _format_errors():
+            return Gaussians.from_numpy(self._reader.read_dynamic(t))
 
     def at(self, t: int) -> Gaussians:
         """Static followed by dynamic set ``t``."""
         _check_time(t, self.num_times)
-        return Gaussians.from_numpy(self._reader.read_at(t))
+        with _format_errors():
+            return Gaussians.from_numpy(self._reader.read_at(t))
 
     def verify(self) -> None:
-        """Check every section's checksum; raises ValueError on the first mismatch."""
-        self._reader.verify()
+        """Check every section's checksum; raises FormatError on the first mismatch."""
+        with _format_errors():
+            self._reader.verify()
 
     def export(self, t: int, path_out: PathLike) -> None:
         """Write timestamp ``t`` (static + dynamic) as a plain 3DGS ``.ply``."""
         _check_time(t, self.num_times)
-        self._reader.export_ply(t, os.fspath(path_out))
+        with _format_errors():
+            self._reader.export_ply(t, os.fspath(path_out))
 
     def read(self) -> Scene4D:
         """Decode the whole scene."""

@@ -119,7 +119,13 @@ def region_masks(cfg: SceneConfig, width: int, height: int) -> list[torch.Tensor
         raise RegionError("the scene has no moving region: add a mask, box or click to 'regions'")
     masks = []
     for index, region in enumerate(cfg.regions):
-        mask = torch.from_numpy(np.ascontiguousarray(region_mask(region, width, height)))
+        try:
+            pixels = region_mask(region, width, height)
+        except RegionError:
+            raise
+        except ConfigError as error:  # a box or click off the panorama
+            raise RegionError(f"regions[{index}].{region.kind}: {error} ({cfg.panorama})") from None
+        mask = torch.from_numpy(np.ascontiguousarray(pixels))
         if not mask.any():
             raise RegionError(
                 f"regions[{index}] ({region.kind}) covers no pixel of the {width}×{height} "

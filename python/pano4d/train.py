@@ -6,21 +6,31 @@
    dynamic Gaussians, each stage checkpointed in output/checkpoints/;
 3. its outputs (``pano4d.lift.export``): scene.ply4d, preview.mp4, contact.png, metrics.json.
 
-A rerun after a kill skips what is done and resumes an optimisation from its last
-checkpoint. ``demo`` makes a synthetic scene and trains it.
+A rerun after a kill skips what is done and resumes each stage where its last checkpoint
+left it; metrics.json's ``resumed_at`` says where that was. ``demo`` makes a synthetic
+scene and trains it.
+
+Tests kill a real ``pano4d train`` inside a stage through one environment variable,
+``PANO4D_TEST_KILL_AT=stage:n`` (``kill_hook_from_env``): the process sends itself SIGKILL
+at the n-th step callback of that stage (animate, depth, align, static, dynamic, export;
+what a step is: ``lift.pipeline.StepHook``).
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from pathlib import Path
 from typing import Any
 
-from pano4d.config import SceneConfig, config_hash, load_config
+from pano4d.config import SceneConfig, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints, TrainError
 from pano4d.lift.export import export
 from pano4d.lift.pipeline import StepHook, frame_suffix, lift
 from pano4d.progress import Bars
+
+KILL_AT_ENV = "PANO4D_TEST_KILL_AT"
 
 
 def run_train(
@@ -32,15 +42,17 @@ def run_train(
 ) -> dict[str, Any]:
     """Run ``cfg`` end to end (resuming from checkpoints); returns the metrics written.
 
-    ``on_step(stage, step)`` is called after every optimisation step of the align, static and
-    dynamic stages (tests use it to interrupt a run at a known point). ``checkpoint_every``:
-    optimisation steps between checkpoints (stages are always checkpointed when done).
+    ``on_step(stage, step)`` is called after every step of every stage (what a step is:
+    ``lift.pipeline.StepHook``); without one, ``PANO4D_TEST_KILL_AT`` may set one.
+    ``checkpoint_every``: optimisation steps between checkpoints (stages are always
+    checkpointed when done).
     """
     if checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be ≥ 1, got {checkpoint_every}")
+    on_step = on_step if on_step is not None else kill_hook_from_env()
     out = Path(cfg.output)
     out.mkdir(parents=True, exist_ok=True)
-    checkpoints = Checkpoints(out / "checkpoints", config_hash(cfg), checkpoint_every)
+    checkpoints = Checkpoints.for_config(out / "checkpoints", cfg, checkpoint_every)
     with Bars("loss", enabled=progress) as bars:
         start = time.perf_counter()
         frames_dir = out / "animate" / "frames"
@@ -51,14 +63,36 @@ def run_train(
         if recorded or not _frames_complete(frames_dir, cfg.animate.frames, suffix):
             from pano4d.animate.pipeline import run_animate
 
-            run_animate(cfg, progress=progress)
+            animated = run_animate(cfg, progress=progress, on_step=on_step)
+            checkpoints.resumed("animate", frame=animated.resumed_at)
             if not _frames_complete(frames_dir, cfg.animate.frames, suffix):
                 raise TrainError(
                     f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
                 )
         animate_seconds = time.perf_counter() - start
         lifted = lift(cfg, frames_dir, checkpoints, bars, render_backend, on_step, animate_seconds)
-        return export(lifted)
+        return export(lifted, on_step)
+
+
+def kill_hook_from_env() -> StepHook | None:
+    """For tests: ``PANO4D_TEST_KILL_AT=stage:n`` kills this process (SIGKILL, no clean-up)
+    at the n-th step callback of ``stage``, counted from 1 in this process; unset: None."""
+    spec = os.environ.get(KILL_AT_ENV)
+    if not spec:
+        return None
+    stage, _, count = spec.partition(":")
+    if not count.isdigit() or int(count) < 1:
+        raise ValueError(f"{KILL_AT_ENV}={spec!r}: expected stage:n with n ≥ 1")
+    calls = 0
+
+    def kill(name: str, _step: int) -> None:
+        nonlocal calls
+        if name == stage:
+            calls += 1
+            if calls == int(count):
+                os.kill(os.getpid(), signal.SIGKILL)
+
+    return kill
 
 
 def _frames_complete(folder: Path, count: int, suffix: str) -> bool:

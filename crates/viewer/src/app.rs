@@ -36,11 +36,10 @@ impl DisplayTexture {
         height: u32,
     ) -> Self {
         let texture = renderer.create_target(width, height);
-        // The rasteriser's colours are display values: an sRGB view makes egui decode them
-        // as it decodes its own images.
+        // The rasteriser's colours are display (sRGB-encoded) values, and egui's shader
+        // takes texture samples as such (it blends in gamma space): a plain view, no sRGB
+        // decode on the way (an Rgba8UnormSrgb view showed every frame too dark).
         let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            format: Some(wgpu::TextureFormat::Rgba8UnormSrgb),
-            // Sampled only: sRGB formats cannot be storage-bound.
             usage: Some(wgpu::TextureUsages::TEXTURE_BINDING),
             ..Default::default()
         });

@@ -13,8 +13,9 @@ and writes (docs/design.md, "Files a run writes")::
 
 Every file is written atomically. ``run.json`` records the same hash when a run starts: a
 run killed part-way resumes from the first missing frame (the flow backend is
-deterministic, so the frames it keeps are the frames it would write again); with another
-config or another input the old frames are deleted first.
+deterministic, so the frames it keeps are the frames it would write again; metrics.json
+and done.json record that frame as ``resumed_at``); with another config or another input
+the old frames are deleted first, once the new panorama and regions have been read.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from rich.console import Console
 from rich.table import Table
 
 from pano4d.config import SceneConfig, config_hash
+from pano4d.errors import InputError
 from pano4d.fsutil import write_json_atomic
 from pano4d.images import read_image, read_panorama, write_image, write_video
 from pano4d.metrics import VideoMetrics
@@ -44,7 +46,7 @@ from pano4d.regions import Regions, build_regions
 PREVIEW_MAX_WIDTH = 2048
 
 
-class AnimateError(RuntimeError):
+class AnimateError(InputError, RuntimeError):
     """The animating phase cannot run as configured; the message says what to fix."""
 
 
@@ -58,14 +60,18 @@ class AnimateResult:
     metrics: dict[str, Any]
     skipped: bool  # True when a finished run with the same inputs was found
     seconds: float
+    resumed_at: int  # the first frame this run made (the frame count when none was missing)
 
 
 def animate_folder(cfg: SceneConfig) -> Path:
     return Path(cfg.output) / "animate"
 
 
-def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
-    """Run (or resume, or skip) the animating phase of ``cfg``; see the module docstring."""
+def run_animate(
+    cfg: SceneConfig, progress: bool = True, on_step: Callable[[str, int], None] | None = None
+) -> AnimateResult:
+    """Run (or resume, or skip) the animating phase of ``cfg``; see the module docstring.
+    ``on_step("animate", t)`` is called when frame t is written."""
     started = time.perf_counter()
     console = Console(stderr=True, quiet=not progress)
     folder = animate_folder(cfg)
@@ -82,46 +88,57 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
         if metrics:
             console.print(f"[green]animate:[/] up to date in {folder}, skipped")
             print_metrics(console, metrics)
-            return AnimateResult(folder, paths, video, metrics, True, 0.0)
+            return AnimateResult(folder, paths, video, metrics, True, 0.0, count)
 
-    run: dict[str, Any] = {"inputs_hash": key, "config_hash": config_hash(cfg)}
-    previous = _read_json(folder / "run.json")
-    if previous.get("inputs_hash") != key:
-        for stale in (frames_dir, folder / "done.json", folder / "metrics.json", video):
-            if stale.is_dir():
-                shutil.rmtree(stale)
-            else:
-                stale.unlink(missing_ok=True)
-    elif "backend" in previous:
-        run["backend"] = previous["backend"]  # what made the frames kept
-    (folder / "done.json").unlink(missing_ok=True)
-    write_json_atomic(folder / "run.json", run)
-
+    # Bad input (the panorama, the regions, the backend's weights) fails here, before
+    # anything of an earlier run is deleted.
     panorama = read_panorama(cfg.panorama)
     height, width = panorama.shape[:2]
     regions = build_regions(cfg, width, height)
-    missing = [t for t, p in enumerate(paths) if not p.is_file()]
+    run: dict[str, Any] = {"inputs_hash": key, "config_hash": config_hash(cfg)}
+    previous = _read_json(folder / "run.json")
+    stale = previous.get("inputs_hash") != key
+    missing = [t for t, p in enumerate(paths) if stale or not p.is_file()]
+    render = None
     if missing:
         render, run["backend"] = _backend(cfg, panorama, regions)
-        # Kept with the run, so that a run resumed after its last frame still reports them.
-        write_json_atomic(folder / "run.json", run)
+    elif "backend" in previous:
+        run["backend"] = previous["backend"]  # what made the frames kept
+
+    if stale:
+        for old in (frames_dir, folder / "done.json", folder / "metrics.json", video):
+            if old.is_dir():
+                shutil.rmtree(old)
+            else:
+                old.unlink(missing_ok=True)
+    (folder / "done.json").unlink(missing_ok=True)
+    # Kept with the run, so that a run resumed after its last frame still reports them.
+    write_json_atomic(folder / "run.json", run)
+
+    resumed_at = missing[0] if missing else count
+    if render is not None:
         with Bars(enabled=progress, console=console) as bars:
             task = bars.task(f"animate ({cfg.animate.backend})", count, count - len(missing))
             for t in missing:
                 frame = enforce_static(render(t), panorama, regions.blend)
                 write_image(paths[t], frame, bits=None if suffix == ".exr" else 16)
                 task.advance()
+                if on_step is not None:
+                    on_step("animate", t)
 
     metrics = _write_video_and_measure(paths, video, panorama, regions, cfg.animate.fps)
     metrics["backend"] = cfg.animate.backend
     metrics.update(run.get("backend", {}))
     metrics["seconds"] = time.perf_counter() - started
+    metrics["resumed_at"] = resumed_at
     write_json_atomic(folder / "metrics.json", metrics)
     write_json_atomic(
-        folder / "done.json", {"inputs_hash": key, "config_hash": config_hash(cfg), "frames": count}
-    )
+        folder / "done.json",
+        {"inputs_hash": key, "config_hash": config_hash(cfg), "frames": count,
+         "resumed_at": resumed_at},
+    )  # fmt: skip
     print_metrics(console, metrics)
-    return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"])
+    return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"], resumed_at)
 
 
 def inputs_hash(cfg: SceneConfig) -> str:

@@ -1,24 +1,35 @@
 """What lets a run resume: each lifting stage's state in output/checkpoints/<stage>.pt.
 
-A checkpoint records the hash of the config it was written for; a different config (or a
-different output) starts that stage again instead of resuming someone else's state. Every
-file is written atomically, so a kill leaves the previous checkpoint or the new one.
+A checkpoint records the key of the stage it was written for (``stage_keys``): the hash of
+what the stage's result depends on, chained through the stages before it. A stage resumes
+only from a checkpoint with its own key, so a config change discards exactly the stages it
+affects and those after them (a new ``gaussian_iterations`` keeps the depth and the
+alignment; new regions re-run everything). Every file is written atomically, so a kill
+leaves the previous checkpoint or the new one.
+
+Each stage also records where this run picked it up (``Checkpoints.resumed``): saved with
+every checkpoint of the stage and written to metrics.json as ``resumed_at``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+import json
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from pano4d.config import SceneConfig
+from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 
 CHECKPOINT_EVERY = 50  # optimisation steps between checkpoints
+STAGES = ("depth", "align", "static", "dynamic")  # in order; each depends on those before
 
 
-class TrainError(RuntimeError):
+class TrainError(InputError, RuntimeError):
     """The run cannot go on (missing frames, broken checkpoint, ...)."""
 
 
@@ -28,27 +39,76 @@ def save_atomic(path: Path, payload: dict[str, Any]) -> None:
         torch.save(payload, tmp)
 
 
+def stage_keys(cfg: SceneConfig) -> dict[str, str]:
+    """Per lifting stage, the hash of the settings its result depends on, chained: each key
+    covers the stage's own settings and the key of the stage before it."""
+    from pano4d.animate.pipeline import inputs_hash
+
+    knobs = cfg.resolved_preset().model_dump()
+    own: dict[str, dict[str, Any]] = {
+        # the frames (what the animating phase made of the panorama, regions and seed), the
+        # view layout and the depth backend
+        "depth": {
+            "frames": inputs_hash(cfg),
+            "depth": cfg.depth.model_dump(mode="json"),
+            "lift": cfg.lift.model_dump(mode="json"),
+            "view_size": knobs["view_size"],
+            "device": cfg.device,
+        },
+        "align": {"align_iterations": knobs["align_iterations"]},
+        "static": {
+            "knobs": knobs,
+            "features": cfg.features.model_dump(mode="json"),
+            "seed": cfg.seed,
+        },
+        "dynamic": {},  # trained against the static set: everything static depends on
+    }
+    keys: dict[str, str] = {}
+    previous = ""
+    for stage in STAGES:
+        text = json.dumps({"after": previous, **own[stage]}, sort_keys=True)
+        previous = keys[stage] = hashlib.sha256(text.encode()).hexdigest()
+    return keys
+
+
 @dataclass
 class Checkpoints:
     folder: Path
-    config_hash: str
+    keys: dict[str, str]  # stage_keys of the config being run
     every: int = CHECKPOINT_EVERY  # optimisation steps between checkpoints
+    # Where this run picked each stage up, e.g. {"static": {"step": 50}}; all zeros when it
+    # started the stage from scratch.
+    resumed_at: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    @classmethod
+    def for_config(
+        cls, folder: Path, cfg: SceneConfig, every: int = CHECKPOINT_EVERY
+    ) -> Checkpoints:
+        return cls(folder, stage_keys(cfg), every)
 
     def path(self, name: str) -> Path:
         return self.folder / f"{name}.pt"
 
     def load(self, name: str) -> dict[str, Any] | None:
-        """The stage's saved state, or None if absent or written for another config."""
+        """The stage's saved state, or None if absent or written for other settings."""
         path = self.path(name)
         if not path.is_file():
             return None
         try:
             state = torch.load(path, map_location="cpu", weights_only=False)
-        except (OSError, RuntimeError, EOFError) as error:
+        except Exception as error:  # torch raises what its unpickler and zip reader meet
             raise TrainError(
-                f"{path}: unreadable checkpoint ({error}); delete it to restart that stage"
+                f"{path}: unreadable checkpoint ({' '.join(str(error).split())}); "
+                "delete it to restart that stage"
             ) from error
-        return state if state.get("config_hash") == self.config_hash else None
+        if not isinstance(state, dict):
+            raise TrainError(f"{path}: not a pano4d checkpoint; delete it to restart that stage")
+        return state if state.get("key") == self.keys[name] else None
+
+    def resumed(self, name: str, **position: int) -> None:
+        """Record where this run picked stage ``name`` up."""
+        self.resumed_at[name] = position
 
     def save(self, name: str, state: dict[str, Any]) -> None:
-        save_atomic(self.path(name), {**state, "config_hash": self.config_hash})
+        payload = {**state, "key": self.keys[name], "resumed_at": self.resumed_at.get(name)}
+        save_atomic(self.path(name), payload)

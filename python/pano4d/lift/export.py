@@ -34,6 +34,7 @@ from pano4d.lift.pipeline import (
     Lifted,
     LiftInputs,
     StaticSet,
+    StepHook,
 )
 from pano4d.metrics import novel_view_metrics
 
@@ -42,14 +43,25 @@ PREVIEW_ORBIT = 0.01  # orbit radius as a fraction of the median scene depth
 CONTACT_TIMES = 3
 
 
-def export(lifted: Lifted) -> dict[str, Any]:
-    """Write every output file of a lifted scene; returns the metrics (also metrics.json)."""
+def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
+    """Write every output file of a lifted scene; returns the metrics (also metrics.json,
+    written last). ``on_step("export", n)`` is called after the n-th file
+    (the three diagnosis files count as one)."""
     inputs, alignment, initial = lifted.inputs, lifted.alignment, lifted.initial
     static, dynamic = lifted.static, lifted.dynamic
     start = time.perf_counter()
     out = Path(inputs.cfg.output)
+    written = 0
+
+    def wrote() -> None:
+        nonlocal written
+        written += 1
+        if on_step is not None:
+            on_step("export", written)
+
     scene = scene4d(inputs, static.gaussians, dynamic.gaussians, alignment, initial)
     ply4d.write(out / "scene.ply4d", scene)
+    wrote()
     render = inputs.render
     size = inputs.knobs.view_size
     w, h = 2 * size, (2 * size * 9 // 16) // 2 * 2  # 16:9, as wide as two views
@@ -62,6 +74,7 @@ def export(lifted: Lifted) -> dict[str, Any]:
             for i, c in enumerate(cams)
         ]
     write_video(out / "preview.mp4", frames, inputs.cfg.animate.fps)
+    wrote()
 
     gt = read_gt_views(Path(inputs.cfg.panorama))
     metrics_views = (
@@ -87,15 +100,19 @@ def export(lifted: Lifted) -> dict[str, Any]:
                 labels.append(f"t={t}")
         columns = len(test)
     write_contact_sheet(out / "contact.png", tiles, columns, labels)
+    wrote()
+    stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
+    write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
+    wrote()
     timings = {**lifted.timings, "export": time.perf_counter() - start}
 
     metrics = run_metrics(
         inputs, scene, alignment, initial, static, dynamic, timings, out / "scene.ply4d",
         metrics_views,
     )  # fmt: skip
+    metrics["resumed_at"] = lifted.resumed_at
     write_json_atomic(out / "metrics.json", metrics)
-    stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
-    write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
+    wrote()
     return metrics
 
 

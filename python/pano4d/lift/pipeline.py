@@ -53,8 +53,10 @@ from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 
-# on_step(stage, step): called after every optimisation step of the align, static and
-# dynamic stages (tests use it to interrupt a run at a known point).
+# on_step(stage, step): called after every unit of work a stage can be interrupted after:
+# a frame of the animate and depth stages (step: its index), an optimisation step of the
+# align (step: the iteration within the frame), static and dynamic stages (step: steps
+# done) and a file of the export (step: files written). Tests interrupt a run with it.
 StepHook = Callable[[str, int], None]
 
 
@@ -155,11 +157,14 @@ class ViewDepth:
     seconds: float
 
 
-def estimate_depth(inputs: LiftInputs, checkpoints: Checkpoints, bars: Bars) -> ViewDepth:
+def estimate_depth(
+    inputs: LiftInputs, checkpoints: Checkpoints, bars: Bars, on_step: StepHook | None
+) -> ViewDepth:
     start = time.perf_counter()
     state = checkpoints.load("depth") or {"depth": []}
     done: list[torch.Tensor] = list(state["depth"])
     total = len(inputs.frames)
+    checkpoints.resumed("depth", frame=len(done))
     if len(done) < total:
         backend = make_depth_backend(inputs.cfg.depth, inputs.device)
         task = bars.task(f"depth ({backend.name})", total, len(done))
@@ -168,6 +173,8 @@ def estimate_depth(inputs: LiftInputs, checkpoints: Checkpoints, bars: Bars) -> 
             done.append(backend.view_depth(frame, inputs.cameras).cpu())
             checkpoints.save("depth", {"depth": done})
             task.update(t + 1, loss=math.nan)
+            if on_step is not None:
+                on_step("depth", t)
     return ViewDepth(torch.stack(done), time.perf_counter() - start)
 
 
@@ -193,6 +200,7 @@ def align_depth(
     moving_points = points_in_mask(aligner.ico.points, inputs.moving)
     state = checkpoints.load("align") or {"frames": []}
     done = [FrameAlignment.from_dict(d, inputs.device) for d in state["frames"]]
+    checkpoints.resumed("align", frame=len(done))  # a frame's fit is checkpointed when done
     for t in range(len(done), len(inputs.frames)):
         total = iterations if t == 0 else aligner.warm_iterations
         task = bars.task(f"align frame {t}", total)
@@ -334,12 +342,13 @@ def fit_static(
     on_step: StepHook | None,
 ) -> StaticSet:
     state = checkpoints.load("static") or {"seconds": 0.0}
+    knobs = inputs.knobs
+    iterations = knobs.gaussian_iterations
     if "done" in state:
+        checkpoints.resumed("static", step=iterations)
         done = Gaussians.from_numpy(state["done"], inputs.device)
         log = TrainLog.from_dict(state["log"])
         return StaticSet(done, state["seconds"], state["per_step"], log)
-    knobs = inputs.knobs
-    iterations = knobs.gaussian_iterations
     views = views_of_frame(
         inputs,
         0,
@@ -358,6 +367,7 @@ def fit_static(
     if "trainer" in state:
         trainer.load_state_dict(state["trainer"])
         log = TrainLog.from_dict(state["log"])
+    checkpoints.resumed("static", step=trainer.step)
     start, first_step = time.perf_counter(), trainer.step
 
     def seconds() -> float:
@@ -404,6 +414,7 @@ def fit_dynamic(
     done = [Gaussians.from_numpy(d, inputs.device) for d in state["done"]]
     logs = [TrainLog.from_dict(d) for d in state["logs"]]  # the one in progress last
     total = len(inputs.frames)
+    checkpoints.resumed("dynamic", t=len(done), step=0)
     cameras = inputs.cameras
     seeing = [i for i, c in enumerate(cameras) if float(inputs.moving_in_view(c).max()) > 0]
     cams = [cameras[i] for i in seeing]
@@ -442,6 +453,7 @@ def fit_dynamic(
         )
         if "trainer" in state and state.get("t") == t:
             trainer.load_state_dict(state["trainer"])
+            checkpoints.resumed("dynamic", t=t, step=trainer.step)
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
         log = logs[t]
@@ -462,6 +474,7 @@ class Lifted:
     static: StaticSet
     dynamic: DynamicSets
     timings: dict[str, float]  # seconds: animate, depth, align, static, dynamic
+    resumed_at: dict[str, dict[str, int]]  # where this run picked each stage up
 
 
 def lift(
@@ -475,7 +488,7 @@ def lift(
 ) -> Lifted:
     """Every stage in order on the animation in ``frames_dir``."""
     inputs = prepare(cfg, frames_dir, render_backend)
-    view_depth = estimate_depth(inputs, checkpoints, bars)
+    view_depth = estimate_depth(inputs, checkpoints, bars, on_step)
     alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)
     initial = initial_sets(inputs, alignment.depths[0])
     median = alignment.median_depth
@@ -493,4 +506,4 @@ def lift(
         "static": static.seconds,
         "dynamic": dynamic.seconds,
     }
-    return Lifted(inputs, alignment, initial, static, dynamic, timings)
+    return Lifted(inputs, alignment, initial, static, dynamic, timings, checkpoints.resumed_at)

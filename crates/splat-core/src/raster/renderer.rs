@@ -49,12 +49,12 @@ impl Default for RenderSettings {
 }
 
 /// The texture format [`Renderer::draw`] writes: the forward's colours (display values,
-/// clamped to 0..1) as 8-bit RGBA. Targets may also be viewed as its sRGB twin, so that
-/// samplers decode them the way egui decodes its own images.
+/// clamped to 0..1) as 8-bit RGBA, sampled as they are (egui takes texture samples as
+/// display values).
 pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
-/// A texture [`Renderer::draw`] can write, egui can sample (through an
-/// `Rgba8UnormSrgb` view) and [`Renderer::read_rgba8`] can copy out.
+/// A texture [`Renderer::draw`] can write, egui can sample and [`Renderer::read_rgba8`]
+/// can copy out.
 pub fn target_texture(device: &wgpu::Device, width: u32, height: u32) -> wgpu::Texture {
     device.create_texture(&wgpu::TextureDescriptor {
         label: Some("render target"),
@@ -70,7 +70,7 @@ pub fn target_texture(device: &wgpu::Device, width: u32, height: u32) -> wgpu::T
         usage: wgpu::TextureUsages::STORAGE_BINDING
             | wgpu::TextureUsages::TEXTURE_BINDING
             | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[wgpu::TextureFormat::Rgba8UnormSrgb],
+        view_formats: &[],
     })
 }
 

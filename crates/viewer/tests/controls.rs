@@ -1,0 +1,200 @@
+//! Play, Loop and Screenshot clicked in the real window (egui_kittest on wgpu), and the frame
+//! the window presents compared with splat-core's `Renderer::forward` through the sRGB
+//! transfer.
+//!
+//! A test binary of its own: the screenshot is written into the current directory, which
+//! the screenshot test changes, and no other test may run beside it.
+
+use std::path::{Path, PathBuf};
+
+use eframe::{egui, egui_wgpu};
+use egui_kittest::kittest::Queryable;
+use egui_kittest::Harness;
+use image::RgbaImage;
+use pano4d_viewer::app::ViewerApp;
+use pano4d_viewer::synthetic;
+use splat_core::gaussians::SceneInput;
+use splat_core::ply4d::{self, Scene4d};
+use splat_core::raster::{GpuContext, RenderSettings, Renderer};
+
+mod common;
+use common::TempDir;
+
+const TIMES: usize = 4; // at synthetic::FPS (10): one loop is 0.4 s
+/// Seconds per harness step: half a frame, so that playing shows every timestamp.
+const STEP_DT: f32 = 0.05;
+
+fn scene() -> Scene4d {
+    synthetic::scene(20_000, 2_000, TIMES, 1, 11)
+}
+
+fn open_viewer(dir: &Path) -> Harness<'static, ViewerApp> {
+    let path = dir.join("scene.ply4d");
+    ply4d::write(&path, &scene()).unwrap();
+    let egui_wgpu::WgpuSetup::CreateNew(setup) = egui_kittest::wgpu::default_wgpu_setup() else {
+        panic!("egui_kittest's default set-up creates its own device");
+    };
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(640.0, 480.0))
+        .with_step_dt(STEP_DT)
+        .wgpu_setup(pano4d_viewer::full_limits(setup).into())
+        .build_eframe(move |cc| ViewerApp::new(cc, Some(&path)));
+    harness.run();
+    assert_eq!(harness.state().error(), None);
+    harness
+}
+
+/// Clicks the widget labelled `label`; the second step draws what the click changed.
+fn click(harness: &mut Harness<'static, ViewerApp>, label: &str) {
+    harness.get_by_label(label).click();
+    harness.step();
+    harness.step();
+}
+
+/// The shown timestamp after each of `steps` steps.
+fn play(harness: &mut Harness<'static, ViewerApp>, steps: usize) -> Vec<usize> {
+    (0..steps)
+        .map(|_| {
+            harness.step();
+            harness.state().time_index().unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn play_pause_and_loop_move_time_as_their_labels_say() {
+    let dir = TempDir::new("controls-play");
+    let mut harness = open_viewer(&dir.0);
+    assert_eq!(harness.state().time_index(), Some(0));
+
+    // Play, looping (the default): every timestamp in turn, then back to the first.
+    click(&mut harness, "Play");
+    harness.get_by_label("Pause");
+    let looped = play(&mut harness, 20); // 1 s: 2.5 loops
+    for t in 0..TIMES {
+        assert!(looped.contains(&t), "timestamp {t} never shown: {looped:?}");
+    }
+    assert!(
+        looped.windows(2).any(|w| w == [TIMES - 1, 0]),
+        "looping wraps from the last timestamp to the first: {looped:?}"
+    );
+
+    // Pause: time stands still.
+    click(&mut harness, "Pause");
+    let paused = harness.state().time_index().unwrap();
+    assert_eq!(play(&mut harness, 6), vec![paused; 6]);
+
+    // Loop off, Play: up to the last timestamp, where playback stops by itself.
+    click(&mut harness, "Loop");
+    click(&mut harness, "Play");
+    let once = play(&mut harness, 20);
+    assert_eq!(*once.last().unwrap(), TIMES - 1, "{once:?}");
+    assert!(
+        once.windows(2).all(|w| w[0] <= w[1]),
+        "no wrap without Loop: {once:?}"
+    );
+    harness.get_by_label("Play"); // stopped: the button offers Play again
+}
+
+/// sRGB (0..1) of a display value: what egui decodes the view's texels to before
+/// compositing, and encodes again for the window.
+fn srgb_roundtrip(value: u8) -> f64 {
+    let c = value as f64 / 255.0;
+    let linear = if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    };
+    let encoded = if linear <= 0.0031308 {
+        12.92 * linear
+    } else {
+        1.055 * linear.powf(1.0 / 2.4) - 0.055
+    };
+    encoded * 255.0
+}
+
+fn find_screenshot(dir: &Path) -> PathBuf {
+    let shots: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            name.starts_with("pano4d-view-") && name.ends_with(".png")
+        })
+        .collect();
+    assert_eq!(
+        shots.len(),
+        1,
+        "one screenshot in {}: {shots:?}",
+        dir.display()
+    );
+    shots[0].clone()
+}
+
+#[test]
+fn the_window_shows_forwards_image_and_the_screenshot_saves_it() {
+    let dir = TempDir::new("controls-shot");
+    std::env::set_current_dir(&dir.0).unwrap();
+    let mut harness = open_viewer(&dir.0);
+    let window = harness.render().expect("the window renders on wgpu");
+    let rect = harness.state().view_rect();
+    assert_eq!(
+        (rect.min.x.fract(), rect.min.y.fract()),
+        (0.0, 0.0),
+        "the view sits on whole pixels: {rect:?}"
+    );
+    let (x0, y0) = (rect.min.x as u32, rect.min.y as u32);
+    let (width, height) = (rect.width() as u32, rect.height() as u32);
+
+    // The rasteriser's own image of the same camera, scene and settings.
+    let camera = harness.state().camera().to_camera(width, height);
+    let scene = scene();
+    let mut whole = scene.static_set.clone();
+    whole.extend_from(&scene.dynamic[0]);
+    let mut renderer = Renderer::new(GpuContext::new().unwrap()).unwrap();
+    let (pixels, _) = renderer
+        .forward(
+            &SceneInput::from(&whole),
+            &camera,
+            &RenderSettings::default(),
+        )
+        .unwrap();
+    let expected = |x: u32, y: u32, c: usize| -> u8 {
+        let value = pixels[(y * width + x) as usize * 5 + c];
+        (value.clamp(0.0, 1.0) * 255.0).round() as u8
+    };
+
+    // Presented: within one 8-bit level of forward's value through the sRGB transfer.
+    let mut worst = 0.0f64;
+    for y in 0..height {
+        for x in 0..width {
+            let shown = window.get_pixel(x0 + x, y0 + y).0;
+            for (c, &value) in shown[..3].iter().enumerate() {
+                let want = srgb_roundtrip(expected(x, y, c));
+                worst = worst.max((value as f64 - want).abs());
+            }
+        }
+    }
+    assert!(
+        worst <= 1.0,
+        "presented frame off forward's by {worst} levels"
+    );
+
+    // Screenshot: a PNG that decodes to forward's image, pixel for pixel.
+    click(&mut harness, "Screenshot (PNG)");
+    let shot: RgbaImage = image::open(find_screenshot(&dir.0)).unwrap().to_rgba8();
+    assert_eq!(shot.dimensions(), (width, height));
+    let mut off = 0usize;
+    for (x, y, p) in shot.enumerate_pixels() {
+        off += (0..3)
+            .filter(|&c| p.0[c].abs_diff(expected(x, y, c)) > 1)
+            .count();
+    }
+    assert_eq!(
+        off, 0,
+        "screenshot channels off forward's by more than one level"
+    );
+    assert!(harness
+        .query_by_label_contains("Saved pano4d-view-")
+        .is_some());
+}
