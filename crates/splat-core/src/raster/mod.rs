@@ -15,7 +15,7 @@
 mod backward;
 mod buffers;
 pub mod context;
-mod kernels;
+pub(crate) mod kernels;
 pub mod renderer;
 mod resident;
 #[cfg(test)]
@@ -24,6 +24,7 @@ mod tests;
 pub use backward::Gradients;
 pub use context::{AdapterSummary, GpuContext};
 pub use renderer::{target_texture, RenderSettings, Renderer, TARGET_FORMAT};
+pub(crate) use resident::SceneBuffer;
 pub use resident::{binding_limit, ResidentScene};
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.

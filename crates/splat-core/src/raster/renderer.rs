@@ -198,7 +198,7 @@ pub struct Renderer {
     pub(super) buffers: Buffers,
 }
 
-pub(super) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
+pub(crate) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
     match pollster::block_on(scope.pop()) {
         Some(e) => Err(RasterError::Gpu(e.to_string())),
         None => Ok(()),
@@ -502,6 +502,16 @@ impl Renderer {
         self.ctx.queue.submit([encoder.finish()]);
         pop_error(scope)?;
         Ok(sorted)
+    }
+
+    /// The buffer [`Self::encode_frame`] leaves the forward's H·W·5 pixels in (for a
+    /// training loop's losses on the device).
+    pub(crate) fn frame_pixels(&self) -> &wgpu::Buffer {
+        self.buffers
+            .pixels
+            .buffer
+            .as_ref()
+            .expect("allocated by encode_frame")
     }
 
     fn read_mapped(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
