@@ -9,10 +9,13 @@ const LOSSES_WGSL: &str = include_str!("../../../../shaders/train_losses.wgsl");
 /// kornia's SSIM window: 11 taps, σ = 1.5.
 pub const SSIM_WINDOW: u32 = 11;
 const SSIM_SIGMA: f32 = 1.5;
-/// Per-pixel summands of sums A and B, and where B's totals start (train_losses.wgsl).
-const TERMS_A: u32 = 6;
-const TERMS_B: u32 = 5;
-const TOTALS_B: u32 = 8;
+/// Floats per pixel of the moments (5 × vec4) and of the gradient coefficients (3 × vec4);
+/// partial sums per workgroup; sums (train_losses.wgsl).
+const MOMENT_FLOATS: u64 = 20;
+const COEFF_FLOATS: u64 = 12;
+const PARTIALS: u64 = 8;
+/// Pixels per invocation of the summing passes (train_losses.wgsl).
+const PIXELS_PER_INVOCATION: u32 = 8;
 const TOTALS: u64 = 16;
 /// Floats of the loss read-back: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered weight,
 /// whether L_geo applied].
@@ -96,15 +99,6 @@ impl LossParams {
     }
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-struct ReduceParams {
-    count: u32,
-    quantities: u32,
-    first_total: u32,
-    first_term: u32,
-}
-
 /// A view's targets on the device (`depth` and `previous` are a placeholder when absent).
 pub(super) struct ViewBuffers<'a> {
     pub params: &'a wgpu::Buffer,
@@ -133,59 +127,30 @@ fn storage(
 /// the pixel gradient (`v_pixels`, the forward's layout) and the loss parts (`loss`).
 pub(super) struct LossBuffers {
     pixels: u32,
-    rows: wgpu::Buffer,
+    /// The row-filtered moments, later the column adjoints (never both alive).
+    moments: wgpu::Buffer,
     coeffs: wgpu::Buffer,
-    terms: wgpu::Buffer,
     partials: wgpu::Buffer,
     totals: wgpu::Buffer,
-    reduce_a: wgpu::Buffer,
-    reduce_b: wgpu::Buffer,
     pub v_pixels: wgpu::Buffer,
     pub loss: wgpu::Buffer,
 }
 
 impl LossBuffers {
-    /// Buffers for `pixels` pixels; returns them and the bytes of the two small uniforms
-    /// it uploads.
-    pub(super) fn new(device: &wgpu::Device, queue: &wgpu::Queue, pixels: u32) -> (Self, u64) {
+    pub(super) fn new(device: &wgpu::Device, pixels: u32) -> Self {
         let p = pixels as u64;
         let none = wgpu::BufferUsages::empty();
-        let groups = div_ceil(pixels, 256) as u64;
-        let reduce = |label, params: ReduceParams| {
-            let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: std::mem::size_of::<ReduceParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&params));
-            buffer
-        };
-        let buffers = Self {
+        Self {
             pixels,
-            rows: storage(device, "ssim rows", 15 * p, none),
-            coeffs: storage(device, "ssim coefficients", 9 * p, none),
-            terms: storage(device, "loss terms", (TERMS_A + TERMS_B) as u64 * p, none),
-            partials: storage(device, "loss partial sums", TERMS_A as u64 * groups, none),
+            moments: storage(device, "ssim moments", MOMENT_FLOATS * p, none),
+            coeffs: storage(device, "ssim coefficients", COEFF_FLOATS * p, none),
+            partials: storage(
+                device,
+                "loss partial sums",
+                PARTIALS * div_ceil(pixels, 256) as u64,
+                none,
+            ),
             totals: storage(device, "loss sums", TOTALS, none),
-            reduce_a: reduce(
-                "reduce A",
-                ReduceParams {
-                    count: pixels,
-                    quantities: TERMS_A,
-                    first_total: 0,
-                    first_term: 0,
-                },
-            ),
-            reduce_b: reduce(
-                "reduce B",
-                ReduceParams {
-                    count: pixels,
-                    quantities: TERMS_B,
-                    first_total: TOTALS_B,
-                    first_term: TERMS_A * pixels,
-                },
-            ),
             v_pixels: storage(
                 device,
                 "pixel gradients",
@@ -198,19 +163,20 @@ impl LossBuffers {
                 LOSS_PARTS as u64,
                 wgpu::BufferUsages::COPY_SRC,
             ),
-        };
-        (buffers, 2 * std::mem::size_of::<ReduceParams>() as u64)
+        }
     }
 }
 
+/// One pass: pipeline, (binding, buffer) pairs, workgroups.
+type Stage<'a> = (&'a wgpu::ComputePipeline, Vec<(u32, &'a wgpu::Buffer)>, u32);
+
 pub(super) struct LossKernels {
-    pixel_terms: wgpu::ComputePipeline,
     ssim_rows: wgpu::ComputePipeline,
     ssim_columns: wgpu::ComputePipeline,
-    reduce_partials: wgpu::ComputePipeline,
-    reduce_totals: wgpu::ComputePipeline,
+    totals_a: wgpu::ComputePipeline,
     pearson_terms: wgpu::ComputePipeline,
-    ssim_adjoint_columns: wgpu::ComputePipeline,
+    totals_b: wgpu::ComputePipeline,
+    adjoint_columns: wgpu::ComputePipeline,
     pixel_grads: wgpu::ComputePipeline,
     loss_value: wgpu::ComputePipeline,
 }
@@ -218,28 +184,26 @@ pub(super) struct LossKernels {
 impl LossKernels {
     pub(super) fn new(device: &wgpu::Device) -> Self {
         let entries = [
-            "pixel_terms",
             "ssim_rows",
             "ssim_columns",
-            "reduce_partials",
-            "reduce_totals",
+            "totals_a",
             "pearson_terms",
-            "ssim_adjoint_columns",
+            "totals_b",
+            "adjoint_columns",
             "pixel_grads",
             "loss_value",
         ];
-        let [pixel_terms, ssim_rows, ssim_columns, reduce_partials, reduce_totals, pearson_terms, ssim_adjoint_columns, pixel_grads, loss_value]: [wgpu::ComputePipeline; 9] =
+        let [ssim_rows, ssim_columns, totals_a, pearson_terms, totals_b, adjoint_columns, pixel_grads, loss_value]: [wgpu::ComputePipeline; 8] =
             compile(device, "train losses", &[COMMON_WGSL, LOSSES_WGSL], &entries)
                 .try_into()
-                .expect("nine entry points");
+                .expect("eight entry points");
         Self {
-            pixel_terms,
             ssim_rows,
             ssim_columns,
-            reduce_partials,
-            reduce_totals,
+            totals_a,
             pearson_terms,
-            ssim_adjoint_columns,
+            totals_b,
+            adjoint_columns,
             pixel_grads,
             loss_value,
         }
@@ -256,106 +220,80 @@ impl LossKernels {
         pixels: &wgpu::Buffer,
     ) {
         let groups = div_ceil(b.pixels, 256);
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        let reduce = |pass: &mut wgpu::ComputePass<'_>, params: &wgpu::Buffer| {
-            run_linear(
-                pass,
-                device,
-                &self.reduce_partials,
-                &[(13, params), (14, &b.terms), (9, &b.partials)],
-                groups,
-            );
-            run_linear(
-                pass,
-                device,
-                &self.reduce_totals,
-                &[(13, params), (9, &b.partials), (10, &b.totals)],
-                1,
-            );
-        };
+        let summing = div_ceil(b.pixels, 256 * PIXELS_PER_INVOCATION);
         let p = view.params;
-        run_linear(
-            &mut pass,
-            device,
-            &self.pixel_terms,
-            &[
-                (0, p),
-                (1, pixels),
-                (2, view.rgb),
-                (3, view.weight),
-                (4, view.depth),
-                (5, view.previous),
-                (8, &b.terms),
-            ],
-            groups,
-        );
-        run_linear(
-            &mut pass,
-            device,
-            &self.ssim_rows,
-            &[(0, p), (1, pixels), (2, view.rgb), (6, &b.rows)],
-            groups,
-        );
-        run_linear(
-            &mut pass,
-            device,
-            &self.ssim_columns,
-            &[
-                (0, p),
-                (3, view.weight),
-                (6, &b.rows),
-                (7, &b.coeffs),
-                (8, &b.terms),
-            ],
-            groups,
-        );
-        reduce(&mut pass, &b.reduce_a);
-        run_linear(
-            &mut pass,
-            device,
-            &self.pearson_terms,
-            &[
-                (0, p),
-                (1, pixels),
-                (3, view.weight),
-                (4, view.depth),
-                (8, &b.terms),
-                (10, &b.totals),
-            ],
-            groups,
-        );
-        reduce(&mut pass, &b.reduce_b);
-        run_linear(
-            &mut pass,
-            device,
-            &self.ssim_adjoint_columns,
-            &[(0, p), (6, &b.rows), (7, &b.coeffs)],
-            groups,
-        );
-        run_linear(
-            &mut pass,
-            device,
-            &self.pixel_grads,
-            &[
-                (0, p),
-                (1, pixels),
-                (2, view.rgb),
-                (3, view.weight),
-                (4, view.depth),
-                (5, view.previous),
-                (6, &b.rows),
-                (7, &b.coeffs),
-                (10, &b.totals),
-                (11, &b.v_pixels),
-            ],
-            groups,
-        );
-        run_linear(
-            &mut pass,
-            device,
-            &self.loss_value,
-            &[(0, p), (10, &b.totals), (12, &b.loss)],
-            1,
-        );
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        let stages: [Stage<'_>; 8] = [
+            (
+                &self.ssim_rows,
+                vec![(0, p), (1, pixels), (2, view.rgb), (6, &b.moments)],
+                groups,
+            ),
+            (
+                &self.ssim_columns,
+                vec![
+                    (0, p),
+                    (1, pixels),
+                    (2, view.rgb),
+                    (3, view.weight),
+                    (4, view.depth),
+                    (5, view.previous),
+                    (6, &b.moments),
+                    (7, &b.coeffs),
+                    (9, &b.partials),
+                ],
+                summing,
+            ),
+            (
+                &self.totals_a,
+                vec![(0, p), (9, &b.partials), (10, &b.totals)],
+                1,
+            ),
+            (
+                &self.pearson_terms,
+                vec![
+                    (0, p),
+                    (1, pixels),
+                    (3, view.weight),
+                    (4, view.depth),
+                    (9, &b.partials),
+                    (10, &b.totals),
+                ],
+                summing,
+            ),
+            (
+                &self.totals_b,
+                vec![(0, p), (9, &b.partials), (10, &b.totals)],
+                1,
+            ),
+            (
+                &self.adjoint_columns,
+                vec![(0, p), (7, &b.coeffs), (8, &b.moments)],
+                groups,
+            ),
+            (
+                &self.pixel_grads,
+                vec![
+                    (0, p),
+                    (1, pixels),
+                    (2, view.rgb),
+                    (3, view.weight),
+                    (4, view.depth),
+                    (5, view.previous),
+                    (8, &b.moments),
+                    (10, &b.totals),
+                    (11, &b.v_pixels),
+                ],
+                groups,
+            ),
+            (
+                &self.loss_value,
+                vec![(0, p), (10, &b.totals), (12, &b.loss)],
+                1,
+            ),
+        ];
+        for (pipeline, bindings, groups) in &stages {
+            run_linear(&mut pass, device, pipeline, bindings, *groups);
+        }
     }
 }

@@ -179,7 +179,7 @@ impl TrainSession {
             )));
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let (loss_buffers, loss_bytes) = LossBuffers::new(&device, &queue, width * height);
+        let loss_buffers = LossBuffers::new(&device, width * height);
         let adam_params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("adam params"),
             size: std::mem::size_of::<AdamParams>() as u64,
@@ -212,10 +212,7 @@ impl TrainSession {
             adam_steps: 0,
             extra_frame: None,
             has_extra: false,
-            traffic: Traffic {
-                uploaded: loss_bytes,
-                read_back: 0,
-            },
+            traffic: Traffic::default(),
             config,
             device,
             queue,
