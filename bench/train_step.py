@@ -159,6 +159,7 @@ def tiny_dinov2(folder: Path) -> Any:
     from pano4d.lift.features import make_feature_model
 
     transformers.logging.set_verbosity_error()
+    transformers.logging.disable_progress_bar()
     config = Dinov2Config(hidden_size=32, num_hidden_layers=1, num_attention_heads=2,
                           intermediate_size=64, patch_size=14, image_size=518)  # fmt: skip
     torch.manual_seed(0)

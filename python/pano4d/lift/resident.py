@@ -257,8 +257,7 @@ class ResidentTrainer:
         )
 
     def result(self) -> Gaussians:
-        raw = self._session.state()
-        return unpack(raw["params"], len(raw["unit"]), self._sh_coeffs, self.device)
+        return unpack(self._session.params(), len(self._session), self._sh_coeffs, self.device)
 
     # --- densify and prune ------------------------------------------------------------------
     def densify_and_prune(self) -> None:

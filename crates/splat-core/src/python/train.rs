@@ -255,6 +255,13 @@ impl PyTrainSession {
         Ok(out)
     }
 
+    /// The trained set's parameters as one packed float32 array.
+    fn params<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let s = &mut self.inner;
+        let packed = py.detach(|| s.params()).map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, packed))
+    }
+
     /// The whole scene (context, then trained set) as one packed float32 array.
     fn scene<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let s = &mut self.inner;

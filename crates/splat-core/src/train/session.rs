@@ -226,7 +226,7 @@ impl TrainSession {
             PIXEL_CHANNELS as u64 * (width * height) as u64,
         );
         session.allocate_scene(n_context + n_train)?;
-        session.write_section_range(0, &context)?;
+        session.write_scene(0, &context);
         session.set_trained(trained)?;
         pop_error(scope)?;
         Ok(session)
@@ -403,11 +403,7 @@ impl TrainSession {
     }
 
     /// Writes `part` as scene Gaussians `first..first + part.len()`.
-    fn write_section_range(
-        &mut self,
-        first: u32,
-        part: &SceneInput<'_>,
-    ) -> Result<(), RasterError> {
+    fn write_scene(&mut self, first: u32, part: &SceneInput<'_>) {
         let scene = self.scene.clone();
         let mut start = 0;
         for (data, width) in part
@@ -422,7 +418,6 @@ impl TrainSession {
             );
             start += width * self.capacity as u64;
         }
-        Ok(())
     }
 
     fn floats_per_gaussian(&self) -> u64 {
@@ -456,7 +451,7 @@ impl TrainSession {
             }
         }
         self.allocate_scene(self.n_context + n)?;
-        self.write_section_range(self.n_context, &t.gaussians)?;
+        self.write_scene(self.n_context, &t.gaussians);
         let device = self.device.clone();
         let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
             let buffer = storage(&device, label, len as u64);
@@ -703,12 +698,21 @@ impl TrainSession {
         regions
     }
 
-    /// The whole scene, context then trained set, packed as [`SceneInput::packed`].
-    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
-        let regions = self.scene_regions(0, self.n_context + self.trained.len);
+    fn read_scene(&mut self, first: u32, n: u32) -> Result<Vec<f32>, RasterError> {
+        let regions = self.scene_regions(first, n);
         let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
             regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
         self.read(&borrowed)
+    }
+
+    /// The whole scene, context then trained set, packed as [`SceneInput::packed`].
+    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
+        self.read_scene(0, self.n_context + self.trained.len)
+    }
+
+    /// The trained set's parameters alone, packed as [`SceneInput::packed`].
+    pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
+        self.read_scene(self.n_context, self.trained.len)
     }
 
     /// Reads the trained set and its optimiser state back (one round trip).
