@@ -44,12 +44,12 @@ from pano4d.animate.svd import (
     SVDDenoiser,
     prepare_panorama,
     random_svd_pipeline,
-    resolve_device,
     resolve_dtype,
 )
 from pano4d.config import AnimateConfig
+from pano4d.device import resolve_device
 from pano4d.fsutil import write_json_atomic
-from pano4d.imageio import read_panorama
+from pano4d.images import read_panorama
 from pano4d.sphere import equirect_directions, view_directions, view_layout, views_seeing
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 from pano4d import ply4d, synth
 from pano4d.config import load_config
 from pano4d.fsutil import write_json_atomic
-from pano4d.imageio import read_depth, read_image, read_mask
+from pano4d.images import read_depth, read_image, read_mask
 from pano4d.lift.align import FrameAlignment, sphere_for_views
 from pano4d.resample import equirect_to_perspective, sphere_to_equirect
 from pano4d.sphere import view_layout

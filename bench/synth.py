@@ -20,8 +20,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
-from pano4d import synth
 from pano4d.fsutil import write_json_atomic
+from pano4d.synth.landscape import Landscape
+from pano4d.synth.scene import SynthFrames
+from pano4d.synth.views import make_views, render_panorama
 
 FRAMES = 14
 VIEWS = 8
@@ -36,15 +38,15 @@ def _timed(fn):  # type: ignore[no-untyped-def]
 
 def bench_size(width: int, seed: int) -> dict[str, float | int]:
     height = width // 2
-    landscape, t_build = _timed(lambda: synth.Landscape(seed, FRAMES))
+    landscape, t_build = _timed(lambda: Landscape(seed, FRAMES))
     (pano, _depth, labels, hits, dirs), t_pano = _timed(
-        lambda: synth.render_panorama(landscape, width, height)
+        lambda: render_panorama(landscape, width, height)
     )
     mask = landscape.moves(labels)
     moving = mask.view(-1).nonzero()[:, 0]
-    frames = synth.SynthFrames(landscape, pano, moving, dirs[moving], hits.subset(moving))
+    frames = SynthFrames(landscape, pano, moving, dirs[moving], hits.subset(moving))
     _, t_frames = _timed(lambda: [frames[t] for t in range(1, FRAMES)])
-    _, t_views = _timed(lambda: synth.make_views(landscape, VIEWS, VIEW_SIZE))
+    _, t_views = _timed(lambda: make_views(landscape, VIEWS, VIEW_SIZE))
     return {
         "width": width,
         "height": height,

@@ -13,19 +13,20 @@ import torch
 from pano4d import metrics
 from pano4d.animate.flow import FlowAnimator
 from pano4d.animate.pipeline import AnimateError, run_animate
-from pano4d.animate.regions import (
+from pano4d.config import ConfigError, Motion, Region, SceneConfig, validate_config
+from pano4d.images import read_image, write_image
+from pano4d.regions import (
     RegionError,
     active_views,
     angular_velocity_field,
     blend_weight,
     build_regions,
     dilate,
+    region_mask,
     region_masks,
     regions_from_masks,
     sphere_distance_px,
 )
-from pano4d.config import ConfigError, Motion, Region, SceneConfig, validate_config
-from pano4d.imageio import read_image, write_image
 from pano4d.sphere import dir_to_equirect, view_layout
 
 WIDTH, HEIGHT = 256, 128
@@ -52,7 +53,7 @@ def box_mask(
     u0: float, v0: float, u1: float, v1: float, width: int = WIDTH, height: int = HEIGHT
 ) -> torch.Tensor:
     region = Region(box=[u0, v0, u1, v1])
-    return torch.from_numpy(region.to_mask(width, height))
+    return torch.from_numpy(region_mask(region, width, height))
 
 
 def animate(
@@ -129,7 +130,7 @@ def test_no_region_is_an_error(tmp_path: Path) -> None:
     black = tmp_path / "black.png"
     write_image(black, np.zeros((HEIGHT, WIDTH, 1), np.float32))
     with pytest.raises(ConfigError, match="no white pixels"):
-        Region(mask=black).to_mask(WIDTH, HEIGHT)
+        region_mask(Region(mask=black), WIDTH, HEIGHT)
     with pytest.raises(RegionError, match="no moving region"):
         region_masks(SceneConfig.model_construct(regions=[]), WIDTH, HEIGHT)
     with pytest.raises(RegionError, match="covers no pixel"):

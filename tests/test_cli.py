@@ -76,7 +76,7 @@ def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None
 
 
 def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
-    from pano4d import imageio
+    from pano4d import images
 
     out = tmp_path / "scene"
     assert (
@@ -91,7 +91,7 @@ def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     frames = sorted((out / "output" / "animate" / "frames").glob("*.png"))
     assert len(frames) == 3
-    assert imageio.read_image(frames[1]).shape == (256, 512, 3)
+    assert images.read_image(frames[1]).shape == (256, 512, 3)
     evaluated = runner.invoke(app, ["eval", str(out / "scene.yaml")])
     assert evaluated.exit_code == 0, evaluated.output
     assert "static" in evaluated.output
@@ -102,7 +102,7 @@ def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
 def test_check_caps_the_view_size_at_the_panorama_pixel(tmp_path: Path) -> None:
     import numpy as np
 
-    from pano4d.imageio import write_image
+    from pano4d.images import write_image
 
     write_image(tmp_path / "pano.png", np.full((512, 1024, 3), 0.5, dtype=np.float32))
     scene = tmp_path / "scene.yaml"

@@ -10,7 +10,8 @@ import yaml
 
 from pano4d import config
 from pano4d.config import PRESETS, ConfigError, SceneConfig, config_hash, load_config
-from pano4d.imageio import write_image
+from pano4d.images import write_image
+from pano4d.regions import region_mask
 
 MINIMAL = "panorama: pano.png\nregions:\n  - box: [10, 20, 110, 60]\n"
 
@@ -91,9 +92,9 @@ device: cpu
     assert cfg.depth.path == scene / "inputs" / "depth.exr"
     assert cfg.output == tmp_path / "scenes" / "runs" / "lake"
     knobs = cfg.resolved_preset()
-    assert knobs["gaussian_iterations"] == 10
-    assert knobs["lambda_geo"] == 1
-    assert knobs["view_size"] == PRESETS["draft"]["view_size"]
+    assert knobs.gaussian_iterations == 10
+    assert knobs.lambda_geo == 1
+    assert knobs.view_size == PRESETS["draft"]["view_size"]
 
 
 def test_unknown_keys_suggest_the_close_match(scene_dir: Path) -> None:
@@ -260,7 +261,7 @@ def test_template_loads_and_documents_every_key(tmp_path: Path) -> None:
     assert set(raw) == set(SceneConfig.model_fields)
     for section in ("animate", "depth", "features", "lift"):
         assert set(raw[section]) == set(type(getattr(cfg, section)).model_fields), section
-    assert cfg.regions[0].to_mask(512, 256).sum() == 256 * 64
+    assert region_mask(cfg.regions[0], 512, 256).sum() == 256 * 64
     text = path.read_text()
     for knob in PRESETS["draft"]:
         assert knob in text, f"template does not mention override knob {knob}"
@@ -279,15 +280,15 @@ def test_write_example_refuses_to_overwrite(tmp_path: Path) -> None:
 
 def test_box_click_and_mask_regions_to_masks(tmp_path: Path) -> None:
     seam = config.Region(box=[500, 10, 20, 20])
-    mask = seam.to_mask(512, 256)
+    mask = region_mask(seam, 512, 256)
     assert mask[10:20, 500:].all() and mask[10:20, :20].all()
     assert mask.sum() == 10 * 32
     click = config.Region(click=[5, 100], size=16)
     assert click.pixel_box(512, 256) == (509.0, 92.0, 13.0, 108.0)
-    assert click.to_mask(512, 256).sum() == 16 * 16
+    assert region_mask(click, 512, 256).sum() == 16 * 16
     with pytest.raises(ConfigError, match=r"outside the 512×256 panorama"):
-        config.Region(box=[0, 0, 600, 10]).to_mask(512, 256)
+        region_mask(config.Region(box=[0, 0, 600, 10]), 512, 256)
     write_image(tmp_path / "m.png", np.zeros((128, 256), np.float32))
     blank = config.Region.model_validate({"mask": "m.png"}, context={"base_dir": tmp_path})
     with pytest.raises(ConfigError, match="no white pixels"):
-        blank.to_mask(512, 256)
+        region_mask(blank, 512, 256)

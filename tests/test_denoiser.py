@@ -15,7 +15,7 @@ from pano4d.animate.denoiser import PanoramicDenoiser, SphereLatent, euler_step,
 from pano4d.animate.noise import build_footprints, footprints_for_views, sphere_white_noise
 from pano4d.camera import Camera
 from pano4d.config import validate_config
-from pano4d.imageio import read_image
+from pano4d.images import read_image
 from pano4d.resample import sphere_sampler
 from pano4d.sphere import (
     equirect_directions,
@@ -244,8 +244,8 @@ def tiny_svd_mask(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _scene(tmp_path: Path, weights: Path) -> tuple:
-    from pano4d.animate.regions import moving_mask
-    from pano4d.imageio import write_image
+    from pano4d.images import write_image
+    from pano4d.regions import moving_mask
 
     # A smooth panorama, written and read back through the config like a user's.
     dirs = equirect_directions(128, 64, torch.float64)
@@ -291,8 +291,8 @@ def test_animate_svd_moves_only_the_region_and_keeps_the_rest_bit_identical(
 ) -> None:
     """End to end through the loading code, by path: several views, a region across the
     seam, Animate-Anything's mask input; outside the region the input, bit for bit."""
-    from pano4d.animate.regions import blend_weight
     from pano4d.animate.svd import animate_svd
+    from pano4d.regions import blend_weight
 
     cfg, panorama, moving = _scene(tmp_path, tiny_svd_mask)
     panorama = torch.from_numpy(read_image(cfg.panorama)).permute(2, 0, 1).contiguous()

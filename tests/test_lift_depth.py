@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from pano4d.config import DepthConfig, FeaturesConfig
-from pano4d.imageio import write_image
+from pano4d.images import write_image
 from pano4d.lift.depth import (
     DepthError,
     FileDepth,

@@ -8,12 +8,10 @@ import pytest
 import torch
 
 from pano4d.gaussians import SH_C0, Gaussians
-from pano4d.lift.gaussians import (
-    dilate_mask,
+from pano4d.lift.initial import (
     facing_rotations,
     init_gaussians,
     init_sphere,
-    moving_mask,
     points_in_mask,
 )
 from pano4d.lift.optimize import (
@@ -24,6 +22,7 @@ from pano4d.lift.optimize import (
     pearson_loss,
     sem_alpha,
 )
+from pano4d.regions import moving_in_video
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
 
@@ -65,16 +64,12 @@ def test_facing_rotation_turns_local_z_onto_the_direction() -> None:
     assert torch.allclose(local_z, d, atol=1e-10)
 
 
-def test_dilation_wraps_the_seam_and_the_moving_mask_catches_changes() -> None:
-    mask = torch.zeros(8, 16, dtype=torch.bool)
-    mask[4, 0] = True
-    grown = dilate_mask(mask, 1)
-    assert grown[4, 15] and grown[3, 1] and grown.sum() == 9
+def test_the_moving_mask_catches_changes() -> None:
     frames = torch.zeros(3, 8, 16, 3)
     frames[2, 1, 5] = 0.5
     regions = torch.zeros(8, 16, dtype=torch.bool)
     regions[6, 6] = True
-    moving = moving_mask(frames, regions)
+    moving = moving_in_video(frames, regions)
     assert moving[1, 5] and moving[6, 6] and moving.sum() == 2
 
 

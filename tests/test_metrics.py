@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from pano4d import metrics
-from pano4d.imageio import write_image
+from pano4d.images import write_image
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 

@@ -1,4 +1,4 @@
-"""Sphere and camera geometry: DESIGN.md's conventions, the shared vectors, the extremes."""
+"""Sphere and camera geometry: docs/design.md's conventions, the shared vectors, the extremes."""
 
 from __future__ import annotations
 

@@ -12,6 +12,11 @@ import torch
 from pano4d import synth
 from pano4d.camera import Camera
 from pano4d.sphere import equirect_directions, equirect_to_dir
+from pano4d.synth.landscape import CAMERA_HEIGHT, LABEL_OBJECT, LABEL_TERRAIN, LABEL_WATER
+from pano4d.synth.objects import OBJECT_KINDS
+from pano4d.synth.terrain import FLAT_RADIUS
+from pano4d.synth.views import VIEW_FRACTIONS, median_scene_depth, render_panorama, render_view
+from pano4d.synth.world import LABEL_SKY, SKY_DEPTH
 
 SEED, WIDTH, HEIGHT, FRAMES = 3, 256, 128, 4
 
@@ -34,7 +39,7 @@ def test_same_seed_same_scene_other_seed_other_scene(scene: synth.SynthScene) ->
         assert a.time == b.time
     other = synth.make_scene(SEED + 1, WIDTH, HEIGHT, FRAMES, views=1, view_size=16)
     assert (other.panorama - scene.panorama).abs().mean() > 0.02
-    assert [o.centre for o in other.objects] != [o.centre for o in scene.objects]
+    assert [o.centre for o in other.world.objects] != [o.centre for o in scene.world.objects]
 
 
 def test_shapes_and_ranges(scene: synth.SynthScene) -> None:
@@ -44,24 +49,24 @@ def test_shapes_and_ranges(scene: synth.SynthScene) -> None:
     assert scene.frames.shape == (FRAMES, HEIGHT, WIDTH, 3) and len(scene.frames) == FRAMES
     assert float(scene.panorama.min()) >= 0.0 and float(scene.panorama.max()) <= 1.0
     assert torch.equal(scene.frames[0], scene.panorama)
-    assert float(scene.depth.max()) == synth.SKY_DEPTH  # the sky, seen from the origin
-    assert float(scene.depth.min()) >= synth.CAMERA_HEIGHT * 0.999  # nothing nearer than the ground
+    assert float(scene.depth.max()) == SKY_DEPTH  # the sky, seen from the origin
+    assert float(scene.depth.min()) >= CAMERA_HEIGHT * 0.999  # nothing nearer than the ground
 
 
 def test_every_label_is_drawn(scene: synth.SynthScene) -> None:
     present = set(scene.labels.unique().tolist())
-    assert {synth.LABEL_SKY, synth.LABEL_TERRAIN, synth.LABEL_WATER} <= present
+    assert {LABEL_SKY, LABEL_TERRAIN, LABEL_WATER} <= present
 
 
 def test_depth_lies_on_the_surface_it_hit(scene: synth.SynthScene) -> None:
     dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
     points = scene.depth.view(-1, 1) * dirs
     labels = scene.labels.view(-1)
-    residual = scene.landscape.surface_residual(points, labels)
+    residual = scene.world.surface_residual(points, labels)
     assert not residual.isnan().any()
-    terrain = labels == synth.LABEL_TERRAIN
+    terrain = labels == LABEL_TERRAIN
     # Hills beyond the flat meadow are marched; the meadow is analytic.
-    far = terrain & (scene.depth.view(-1) > synth.FLAT_RADIUS)
+    far = terrain & (scene.depth.view(-1) > FLAT_RADIUS)
     assert int(far.sum()) > 100
     assert float(residual[terrain].abs().max()) < 5e-3
     assert float(residual[~terrain].abs().max()) < 5e-3
@@ -70,13 +75,13 @@ def test_depth_lies_on_the_surface_it_hit(scene: synth.SynthScene) -> None:
 def test_terrain_hits_are_the_first_crossing_along_the_ray(scene: synth.SynthScene) -> None:
     dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
     depth, labels = scene.depth.view(-1), scene.labels.view(-1)
-    sel = (labels == synth.LABEL_TERRAIN) & (depth > synth.FLAT_RADIUS + 5)
+    sel = (labels == LABEL_TERRAIN) & (depth > FLAT_RADIUS + 5)
     d, t_hit = dirs[sel], depth[sel]
     # Dense samples before the hit (finer than the march) must be above the terrain.
     buried = torch.zeros(d.shape[0], dtype=torch.bool)
     for fraction in torch.linspace(0.3, 0.995, 200):
         p = (t_hit * fraction)[:, None] * d
-        gap = p[:, 2] - scene.landscape.terrain_height(p[:, 0], p[:, 1])
+        gap = p[:, 2] - scene.world.terrain.height(p[:, 0], p[:, 1])
         buried |= gap < -0.05
     # A thin ridge skipped at a grazing angle may hide a few rays; not more.
     assert d.shape[0] > 500
@@ -84,7 +89,7 @@ def test_terrain_hits_are_the_first_crossing_along_the_ray(scene: synth.SynthSce
 
 
 def test_view_from_the_origin_equals_the_panorama(scene: synth.SynthScene) -> None:
-    landscape, pano, depth = scene.landscape, scene.panorama, scene.depth
+    landscape, pano, depth = scene.world, scene.panorama, scene.depth
     gen = torch.Generator().manual_seed(0)
     rows = torch.randint(HEIGHT // 8, HEIGHT - HEIGHT // 8, (16,), generator=gen)
     cols = torch.randint(0, WIDTH, (16,), generator=gen)
@@ -92,16 +97,16 @@ def test_view_from_the_origin_equals_the_panorama(scene: synth.SynthScene) -> No
         forward = equirect_to_dir(col + 0.5, row + 0.5, WIDTH, HEIGHT)
         # An odd-sized view's centre pixel looks exactly along its forward axis.
         camera = Camera.from_fov(10.0, 9, 9, (0.0, 0.0, 0.0), forward)
-        image, z = synth.render_view(landscape, camera, time=0)
+        image, z = render_view(landscape, camera, time=0)
         torch.testing.assert_close(image[4, 4], pano[row, col], atol=2e-3, rtol=0)
         torch.testing.assert_close(z[4, 4], depth[row, col], atol=1e-3, rtol=1e-4)
 
 
 def test_displaced_views(scene: synth.SynthScene) -> None:
-    median = synth.median_scene_depth(scene.landscape)
+    median = median_scene_depth(scene.world)
     assert len(scene.views) == 4
     for i, view in enumerate(scene.views):
-        fraction = synth.VIEW_FRACTIONS[i % 2]
+        fraction = VIEW_FRACTIONS[i % 2]
         assert view.displacement_fraction == fraction
         distance = float(torch.linalg.norm(view.camera.position))
         assert distance == pytest.approx(fraction * median, rel=1e-6)
@@ -111,8 +116,8 @@ def test_displaced_views(scene: synth.SynthScene) -> None:
         uv = view.camera.pixel_grid().view(-1, 2).double()
         points = view.camera.unproject(uv, view.depth.view(-1).double()).float()
         dirs = view.camera.world_directions().view(-1, 3)
-        hits = scene.landscape.cast(view.camera.position.float(), dirs)
-        residual = scene.landscape.surface_residual(points, hits.label)
+        hits = scene.world.cast(view.camera.position.float(), dirs)
+        residual = scene.world.surface_residual(points, hits.label)
         assert float(residual.abs().max()) < 1e-2
 
 
@@ -121,13 +126,13 @@ def test_static_pixels_are_identical_and_moving_pixels_change(scene: synth.Synth
     changed = (frames != frames[:1]).any(dim=-1).any(dim=0)
     assert torch.equal(frames[:, ~scene.mask], frames[:1, ~scene.mask].expand(FRAMES, -1, -1))
     assert not (changed & ~scene.mask).any()  # the mask covers every changed pixel
-    water = scene.labels == synth.LABEL_WATER
+    water = scene.labels == LABEL_WATER
     assert bool(changed[water].all())
     assert float(changed[scene.mask].float().mean()) > 0.3  # clear sky does not change
 
 
 def test_frames_loop(scene: synth.SynthScene) -> None:
-    landscape = scene.landscape
+    landscape = scene.world
     dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
     hits = landscape.cast(torch.zeros(3), dirs)
     at_loop = landscape.shade(torch.zeros(3), dirs, hits, FRAMES).view(HEIGHT, WIDTH, 3)
@@ -141,9 +146,9 @@ def test_frames_loop(scene: synth.SynthScene) -> None:
 
 
 def test_objects_are_where_the_metadata_says(scene: synth.SynthScene) -> None:
-    landscape = scene.landscape
-    assert len(scene.objects) == len(synth.OBJECT_KINDS)
-    for i, obj in enumerate(scene.objects):
+    landscape = scene.world
+    assert len(scene.world.objects) == len(OBJECT_KINDS)
+    for i, obj in enumerate(scene.world.objects):
         centre = torch.tensor(obj.centre)
         to_centre = centre / torch.linalg.norm(centre)
         hits = landscape.cast(torch.zeros(3), to_centre[None])
@@ -153,13 +158,13 @@ def test_objects_are_where_the_metadata_says(scene: synth.SynthScene) -> None:
         elif obj.kind == "pole":
             expected = distance * (1.0 - obj.size[0] / math.hypot(*obj.centre[:2]))
         else:  # the box face the ray meets: slab test in the box frame
-            local = landscape._to_object(obj, torch.zeros(1, 3))[0]
-            direction = landscape._to_object(obj, to_centre[None], direction=True)[0]
+            local = obj.to_local(torch.zeros(1, 3))[0]
+            direction = obj.to_local(to_centre[None], direction=True)[0]
             half = torch.tensor(obj.size)
             expected = float(((-torch.sign(direction) * half - local) / direction).max())
-        assert int(hits.label[0]) == synth.LABEL_OBJECT + i
+        assert int(hits.label[0]) == LABEL_OBJECT + i
         assert float(hits.depth[0]) == pytest.approx(expected, abs=1e-3)
-        assert obj.centre[2] + synth.CAMERA_HEIGHT == pytest.approx(
+        assert obj.centre[2] + CAMERA_HEIGHT == pytest.approx(
             obj.size[2], abs=1e-6
         )  # on the ground
 
@@ -167,8 +172,8 @@ def test_objects_are_where_the_metadata_says(scene: synth.SynthScene) -> None:
 def test_panorama_looks_like_a_landscape(scene: synth.SynthScene) -> None:
     pano = scene.panorama
     assert bool((pano.view(-1, 3).std(dim=0) > 0.08).all())
-    sky = pano[scene.labels == synth.LABEL_SKY]
-    ground = pano[scene.labels == synth.LABEL_TERRAIN]
+    sky = pano[scene.labels == LABEL_SKY]
+    ground = pano[scene.labels == LABEL_TERRAIN]
     assert float(sky.mean()) > float(ground.mean())  # the sky is brighter than the ground
     assert float(sky[:, 2].mean()) > float(sky[:, 0].mean())  # and blue
     assert float(ground[:, 1].mean()) > float(ground[:, 2].mean())  # the meadow is green
@@ -180,14 +185,14 @@ def test_bad_arguments_are_refused(scene: synth.SynthScene) -> None:
     with pytest.raises(ValueError, match="frames"):
         synth.make_scene(0, 64, 32, 0)
     with pytest.raises(ValueError, match="2:1"):
-        synth.render_panorama(scene.landscape, 100, 100)
+        render_panorama(scene.world, 100, 100)
     with pytest.raises(ValueError, match="outside the meadow"):
-        scene.landscape.cast(torch.tensor([500.0, 0.0, 0.0]), torch.tensor([[1.0, 0.0, 0.0]]))
+        scene.world.cast(torch.tensor([500.0, 0.0, 0.0]), torch.tensor([[1.0, 0.0, 0.0]]))
 
 
 def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
     from pano4d.config import load_config
-    from pano4d.imageio import read_image
+    from pano4d.images import read_image
 
     out = tmp_path / "synth"
     (out / "gt" / "frames").mkdir(parents=True)
@@ -210,7 +215,7 @@ def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
 
     data = json.loads((out / "gt" / "views.json").read_text())
     assert data["seed"] == SEED and data["frames"] == FRAMES
-    assert len(data["scene"]["objects"]) == len(scene.objects)
+    assert len(data["scene"]["objects"]) == len(scene.world.objects)
     for entry, view in zip(data["views"], scene.views, strict=True):
         camera = Camera.from_dict(entry)
         assert torch.allclose(camera.world_to_cam, view.camera.world_to_cam)
@@ -221,6 +226,6 @@ def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
     cfg = load_config(yaml_path)
     assert cfg.seed == SEED
     assert cfg.animate.frames == FRAMES
-    assert cfg.regions[0].motion.speed == pytest.approx(scene.landscape.cloud_speed_deg, rel=1e-5)
+    assert cfg.regions[0].motion.speed == pytest.approx(scene.world.cloud_speed_deg, rel=1e-5)
     with pytest.raises(ValueError, match="seed"):
         synth.write_scene(out, scene, SEED + 1)

@@ -11,7 +11,8 @@ import torch
 
 from pano4d import ply4d, synth
 from pano4d.config import SceneConfig, load_config
-from pano4d.train import run_train, working_size
+from pano4d.lift.pipeline import working_size
+from pano4d.train import run_train
 
 TINY = {
     "view_size": 16,

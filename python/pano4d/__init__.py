@@ -1,6 +1,6 @@
 """pano4d: one 360° panorama in, a 4D Gaussian scene out.
 
-Public API (DESIGN.md): ``sphere``, ``Gaussians``, ``Camera``, ``render``, ``ply4d``,
+Public API (docs/design.md): ``sphere``, ``Gaussians``, ``Camera``, ``render``, ``ply4d``,
 ``synth``.
 """
 
@@ -12,7 +12,7 @@ from typing import Any
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 
-# `pano4d.render` is the function (DESIGN.md's API), not the module of the same name:
+# `pano4d.render` is the function (docs/design.md's API), not the module of the same name:
 # binding it here, after the submodule import, keeps it so. The Rust extension itself is
 # loaded on first use.
 from pano4d.render import render

@@ -1,4 +1,4 @@
-"""Perspective pinhole cameras in the OpenCV convention (see DESIGN.md, "Conventions").
+"""Perspective pinhole cameras in the OpenCV convention (see docs/design.md, "Conventions").
 
 x right, y down, z forward; world-to-camera ``[R | t]``; intrinsics in pixels with pixel
 centres at +0.5, so a camera centred on its image has ``cx = width / 2``.

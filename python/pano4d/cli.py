@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 app = typer.Typer(
     name="pano4d",
@@ -25,7 +26,7 @@ console = Console(stderr=True)
 
 def fail(message: str) -> None:
     """Print a clear error (no traceback) and exit with status 2."""
-    console.print(f"[bold red]error:[/] {message}", highlight=False)
+    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
     raise typer.Exit(code=2)
 
 
@@ -64,14 +65,14 @@ def check(
         f"[green]ok[/] {scene}: panorama {cfg.panorama}, {len(cfg.regions)} region(s), "
         f"preset {cfg.preset}"
     )
-    from pano4d.imageio import ImageError, image_size
+    from pano4d.images import ImageError, image_size
 
     try:
         width, _ = image_size(cfg.panorama)
     except ImageError as e:
         fail(str(e))
-    preset = cfg.resolved_preset()
-    for key, value in cfg.resolved_preset(width).items():
+    preset = cfg.resolved_preset().model_dump()
+    for key, value in cfg.resolved_preset(width).model_dump().items():
         note = f"  (the preset's {preset[key]}, capped at the panorama's pixel)"
         console.print(f"  {key} = {value}{note if value != preset[key] else ''}")
 
@@ -129,8 +130,8 @@ def evaluate(
     """Measure an animation: seam, static-region, motion, flicker and loop figures."""
     from pano4d import metrics
     from pano4d.animate.pipeline import animate_folder, print_metrics
-    from pano4d.animate.regions import build_regions
-    from pano4d.imageio import read_panorama
+    from pano4d.images import read_panorama
+    from pano4d.regions import build_regions
 
     cfg = load_scene_config(scene)
     frames = animate_folder(cfg) / "frames"
@@ -194,14 +195,14 @@ def render_command(
     backend: Annotated[str, typer.Option(help="wgpu | torch.")] = "wgpu",
 ) -> None:
     """Render test views of a scene headless, through the same rasteriser as training."""
-    from pano4d import views
+    from pano4d import camera_paths
 
     try:
         if path is None:
-            cam = views.parse_camera(camera, width, height)
-            views.render_still(scene, cam, time, out, backend=backend)
+            cam = camera_paths.parse_camera(camera, width, height)
+            camera_paths.render_still(scene, cam, time, out, backend=backend)
         else:
-            views.render_path(scene, path, out, width, height, frames, fps, backend=backend)
+            camera_paths.render_path(scene, path, out, width, height, frames, fps, backend=backend)
     except (OSError, ValueError, IndexError, RuntimeError) as e:
         fail(str(e))
     console.print(f"wrote {out}")
@@ -221,6 +222,48 @@ def train(
     metrics = run_train(cfg, render_backend=backend)
     console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
     console.print_json(data=metrics)
+
+
+@app.command()
+def batch(
+    scenes: Annotated[
+        list[Path],
+        typer.Argument(help="scene.yaml files, folders of them, or list files (one a line)."),
+    ],
+    address: Annotated[
+        str | None,
+        typer.Option(
+            help="Join this Ray cluster (`ray start --head` there; `auto`: this machine's). "
+            "Default: a local Ray instance for this batch."
+        ),
+    ] = None,
+    gpus_per_scene: Annotated[
+        float, typer.Option(help="GPUs per scene; with no GPU in the cluster, CPU slots.")
+    ] = 1.0,
+    cpus_per_scene: Annotated[float, typer.Option(help="CPUs per scene.")] = 1.0,
+    backend: Annotated[str, typer.Option(help="Rasteriser: wgpu | torch.")] = "wgpu",
+    report: Annotated[Path, typer.Option(help="Where to write the table as JSON.")] = Path(
+        "batch.json"
+    ),
+) -> None:
+    """Train many scenes, one Ray task each; rerun to resume. Exit 0 only if all succeed.
+
+    Finished scenes are skipped, a scene killed half-way resumes from its checkpoints, a
+    failed scene does not stop the others. Needs Ray: pip install 'pano4d[cluster]'."""
+    from pano4d.batch import BatchError, batch_table, run_batch
+
+    try:
+        result = run_batch(
+            scenes, report, address, gpus_per_scene, cpus_per_scene, backend, console
+        )
+    except BatchError as e:
+        fail(str(e))
+    # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
+    table_console = console if console.is_terminal else Console(stderr=True, width=160)
+    table_console.print(batch_table(result))
+    console.print(f"wrote {report}")
+    if not result.ok:
+        raise typer.Exit(code=1)
 
 
 @app.command()

@@ -17,7 +17,6 @@ import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import numpy as np
 import yaml
 from pydantic import (
     BaseModel,
@@ -34,13 +33,14 @@ from pano4d.fsutil import write_text_atomic
 PathLike = str | os.PathLike[str]
 TEMPLATE_PATH = Path(__file__).parent / "templates" / "scene.yaml"
 
-# Knobs of the lifting stage per quality preset. draft must finish in minutes on a CPU.
+# Knobs of the lifting stage per quality preset (their types and meaning: PresetKnobs).
+# draft must finish in minutes on a CPU.
 PRESETS: dict[str, dict[str, int | float | bool]] = {
     "draft": {
-        "view_size": 128,  # pixels per side of each perspective view
-        "init_stride": 8,  # equirect pixels between initial Gaussians
-        "align_iterations": 50,  # depth alignment (per-view scale + shift) steps
-        "gaussian_iterations": 100,  # optimisation steps per timestamp
+        "view_size": 128,
+        "init_stride": 8,
+        "align_iterations": 50,
+        "gaussian_iterations": 100,
         "max_gaussians": 100_000,
         "sh_degree": 0,
         "densify": False,
@@ -85,6 +85,24 @@ LoosePath = Annotated[Path, Field(strict=False)]
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class PresetKnobs(BaseModel):
+    """The lifting phase's knobs: a preset's values with scene.yaml's ``overrides`` applied
+    (``SceneConfig.resolved_preset``)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    view_size: int  # pixels per side of each perspective view
+    init_stride: int  # equirect pixels between initial Gaussians
+    align_iterations: int  # depth alignment (per-view scale + shift) steps
+    gaussian_iterations: int  # optimisation steps per timestamp
+    max_gaussians: int  # the budget: static plus one timestamp's dynamic set
+    sh_degree: int  # spherical-harmonics degree of the Gaussians' colour
+    densify: bool  # split and prune during optimisation
+    lambda_temporal: float  # weight of L_temporal
+    lambda_geo: float  # weight of L_geo
+    lambda_sem: float  # weight of L_sem (with a feature backend)
 
 
 def _absolute(value: Path, info: ValidationInfo) -> Path:
@@ -189,23 +207,7 @@ class Region(_Section):
                 return (0.0, max(0.0, v - half), float(width), min(float(height), v + half))
             return ((u - half) % width, max(0.0, v - half), (u + half) % width,
                     min(float(height), v + half))  # fmt: skip
-        raise ConfigError("a mask region has no box; use to_mask()")
-
-    def to_mask(self, width: int, height: int) -> np.ndarray:
-        """The region as a bool (height, width) mask; a pixel is in a box if its centre is."""
-        if self.mask is not None:
-            from pano4d.imageio import read_mask
-
-            mask = read_mask(self.mask, width, height)
-            if not mask.any():
-                raise ConfigError(f"{self.mask}: the mask has no white pixels, so nothing moves")
-            return mask
-        u0, v0, u1, v1 = self.pixel_box(width, height)
-        cu = np.arange(width) + 0.5
-        cv = np.arange(height) + 0.5
-        cols = (cu >= u0) & (cu < u1) if u0 < u1 else (cu >= u0) | (cu < u1)
-        rows = (cv >= v0) & (cv < v1)
-        return rows[:, None] & cols[None, :]
+        raise ConfigError("a mask region has no box; use pano4d.regions.region_mask()")
 
 
 class AnimateConfig(_Section):
@@ -312,21 +314,21 @@ class SceneConfig(_Section):
     @field_validator("overrides")
     @classmethod
     def _known_overrides(cls, overrides: dict[str, Any]) -> dict[str, Any]:
-        knobs = PRESETS["draft"]
+        knobs = PresetKnobs.model_fields
         problems = []
         for key, value in overrides.items():
             shown = _show(value)
             if key not in knobs:
                 problems.append(f"unknown knob '{key}' (got {shown}){_suggest(key, knobs)}")
                 continue
-            expected = type(knobs[key])
+            expected = knobs[key].annotation
             if type(value) is not expected and not (expected is float and type(value) is int):
                 problems.append(f"'{key}' expects {_TYPE_WORDS[expected]}, got {shown}")
         if problems:
             raise ValueError("; ".join(problems))
         return overrides
 
-    def resolved_preset(self, panorama_width: int | None = None) -> dict[str, int | float | bool]:
+    def resolved_preset(self, panorama_width: int | None = None) -> PresetKnobs:
         """The preset's knobs with ``overrides`` applied. Given the panorama's width, the
         view size is capped where a view pixel matches a panorama pixel: larger views cost
         time and only resample the same pixels."""
@@ -340,7 +342,7 @@ class SceneConfig(_Section):
 
             matched = matched_view_size(panorama_width, self.lift.fov_deg)
             knobs["view_size"] = min(int(knobs["view_size"]), matched)
-        return knobs
+        return PresetKnobs(**knobs)
 
 
 _TYPE_WORDS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}

@@ -1,4 +1,4 @@
-"""A set of 3D Gaussians in the 3DGS parameterisation (see DESIGN.md, "Conventions")."""
+"""A set of 3D Gaussians in the 3DGS parameterisation (see docs/design.md, "Conventions")."""
 
 from __future__ import annotations
 

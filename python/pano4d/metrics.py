@@ -1,7 +1,10 @@
-"""Figures of merit of a panoramic video (``pano4d eval``; ``output/animate/metrics.json``).
+"""Figures of merit: of a panoramic video (``pano4d eval``; ``output/animate/metrics.json``)
+and of a lifted scene's novel views (``output/metrics.json``).
 
-Each figure is a small function on (H, W, 3) float frames in [0, 1]; ``animate_metrics``
+Each video figure is a small function on (H, W, 3) float frames in [0, 1]; ``animate_metrics``
 streams a video through all of them, holding only the first, previous and current frame.
+``novel_view_metrics`` renders a scene at ground-truth cameras: PSNR and SSIM per view and
+per camera displacement.
 
 Optical flow is a dense pyramidal Lucas–Kanade in torch (``optical_flow``): coarse to fine,
 at each level a few Gauss–Newton iterations of the 2×2 normal equations summed over a
@@ -14,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -303,7 +306,7 @@ def evaluate_frames(
 ) -> dict[str, Any]:
     """``animate_metrics`` of the frames in ``folder``; the panorama and mask may be arrays
     or image paths (a mask file: white = moves)."""
-    from pano4d.imageio import read_image, read_mask, read_panorama
+    from pano4d.images import read_image, read_mask, read_panorama
 
     if isinstance(panorama, str | os.PathLike):
         panorama = read_panorama(panorama)
@@ -316,6 +319,54 @@ def evaluate_frames(
             yield read_image(path)[:, :, :3]
 
     return animate_metrics(frames(), pano, mask)
+
+
+# --- novel views -------------------------------------------------------------------------
+def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Peak signal-to-noise ratio in dB of two images in [0, 1]."""
+    mse = float(((a - b) ** 2).mean())
+    return 10 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean SSIM (11×11 Gaussian window, kornia) of two (H, W, 3) images."""
+    import kornia
+
+    x, y = a.permute(2, 0, 1)[None].float(), b.permute(2, 0, 1)[None].float()
+    return float(kornia.metrics.ssim(x, y, 11).mean())
+
+
+def novel_view_metrics(scene: Any, views: list[dict[str, Any]], render: Callable) -> dict[str, Any]:
+    """PSNR/SSIM of renders at the gt cameras, overall and per displacement fraction.
+
+    ``scene`` is a ``ply4d.Scene4D``; each view has ``camera``, ``pixels`` (h, w, 3), ``time``
+    and ``displacement_fraction`` (gt/views.json); ``render(gaussians, camera)`` draws one."""
+    per_view, groups = [], {}
+    for v in views:
+        t = min(int(v["time"]), scene.num_times - 1)
+        with torch.no_grad():
+            rgb = render(scene.at(t), v["camera"]).rgb.clamp(0, 1).cpu()
+        p, s = psnr(rgb, v["pixels"]), ssim(rgb, v["pixels"])
+        fraction = float(v.get("displacement_fraction", 0.0))
+        per_view.append(
+            {
+                "image": v["image"],
+                "time": t,
+                "displacement_fraction": fraction,
+                "psnr": p,
+                "ssim": s,
+            }
+        )
+        groups.setdefault(f"{100 * fraction:g}%", []).append((p, s))
+    summary = {
+        k: {
+            "psnr": float(np.mean([p for p, _ in g])),
+            "ssim": float(np.mean([s for _, s in g])),
+            "views": len(g),
+        }
+        for k, g in groups.items()
+    }
+    return {"views": per_view, "by_displacement": summary}
 
 
 # --- helpers -----------------------------------------------------------------------------

@@ -1,27 +1,101 @@
-"""The rich progress bar long phases show: what runs, done / total, extra fields, elapsed, ETA."""
+"""Progress of long work, the one way every phase reports it (train, animate, synth).
+
+``Bars`` shows a rich bar per task on stderr: what runs, done / total, extra fields (a loss),
+elapsed time and ETA. Disabled, its tasks do nothing, so the code that reports progress
+never asks whether anyone is watching; a ``Task()`` made without bars is silent too.
+"""
 
 from __future__ import annotations
+
+import math
+from types import TracebackType
 
 from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    TaskID,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
 
 
-def progress_bar(*fields: str, console: Console | None = None) -> Progress:
-    """A bar with a column ``name {value}`` for each task field named in ``fields``."""
-    return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        *(TextColumn(f"{name} {{task.fields[{name}]}}") for name in fields),
-        TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
-        console=console,
-    )
+class Task:
+    """One bar of ``Bars``; silent when made without one."""
+
+    def __init__(self, bar: Progress | None = None, task: TaskID | None = None) -> None:
+        self._bar, self._task = bar, task
+
+    def update(self, completed: int, **fields: float | str) -> None:
+        """Set the done count and the extra fields; a float shows four decimals, or '-'
+        while it is not finite (nothing measured yet)."""
+        if self._bar is None or self._task is None:
+            return
+        shown = {name: _show(value) for name, value in fields.items()}
+        self._bar.update(self._task, completed=completed, **shown)
+
+    def advance(self, description: str | None = None) -> None:
+        """One step done; ``description`` (if given) says what was just done."""
+        if self._bar is None or self._task is None:
+            return
+        if description is None:
+            self._bar.advance(self._task)
+        else:
+            self._bar.update(self._task, advance=1, description=description)
+
+
+class Bars:
+    """Progress bars with a column ``name {value}`` for each of ``fields``; use as a context
+    manager, then ``task(description, total)`` per piece of work."""
+
+    def __init__(
+        self,
+        *fields: str,
+        enabled: bool = True,
+        console: Console | None = None,
+        transient: bool = False,
+    ) -> None:
+        self._fields = fields
+        self._bar: Progress | None = None
+        if enabled:
+            self._bar = Progress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                *(TextColumn(f"{name} {{task.fields[{name}]}}") for name in fields),
+                TimeElapsedColumn(),
+                TextColumn("ETA"),
+                TimeRemainingColumn(),
+                console=console,
+                transient=transient,
+            )
+
+    def __enter__(self) -> Bars:
+        if self._bar is not None:
+            self._bar.start()
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+    def task(self, description: str, total: int, completed: int = 0) -> Task:
+        """A new bar, ``completed`` of ``total`` done (a resumed stage starts part-way)."""
+        if self._bar is None:
+            return Task()
+        fields = dict.fromkeys(self._fields, "-")
+        task = self._bar.add_task(description, total=max(total, 1), completed=completed, **fields)
+        return Task(self._bar, task)
+
+
+def _show(value: float | str) -> str:
+    if isinstance(value, str):
+        return value
+    return f"{value:.4f}" if math.isfinite(value) else "-"

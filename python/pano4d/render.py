@@ -1,4 +1,4 @@
-"""``render``: Gaussians + camera → rgb, alpha, expected depth (DESIGN.md, public API).
+"""``render``: Gaussians + camera → rgb, alpha, expected depth (docs/design.md, public API).
 
 ``backend="wgpu"`` runs the Rust compute rasteriser (``pano4d._core``) as a
 ``torch.autograd.Function``: inputs go to the host as float32, the outputs come back on

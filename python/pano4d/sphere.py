@@ -1,4 +1,4 @@
-"""Sphere geometry shared by every stage (DESIGN.md, "Conventions").
+"""Sphere geometry shared by every stage (docs/design.md, "Conventions").
 
 Equirect W×H (W = 2H), continuous pixel coordinates with pixel centres at +0.5:
     φ = 2π(u/W − 0.5),  θ = π(0.5 − v/H),  d = (cos θ cos φ, −cos θ sin φ, sin θ).
@@ -21,7 +21,7 @@ from pano4d.camera import Camera
 
 _GOLDEN = (1.0 + math.sqrt(5.0)) / 2.0
 
-# Icosahedron vertices and faces, identical to splat-core's camera.rs.
+# Icosahedron vertices and faces: the 20 face centres are the default view layout.
 _ICOSAHEDRON_VERTICES = (
     (-1.0, _GOLDEN, 0.0), (1.0, _GOLDEN, 0.0), (-1.0, -_GOLDEN, 0.0), (1.0, -_GOLDEN, 0.0),
     (0.0, -1.0, _GOLDEN), (0.0, 1.0, _GOLDEN), (0.0, -1.0, -_GOLDEN), (0.0, 1.0, -_GOLDEN),
@@ -102,7 +102,7 @@ def icosahedron_face_centres(dtype: torch.dtype = torch.float64) -> torch.Tensor
 
 
 def fibonacci_directions(n: int, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """n near-uniform directions on the sphere (Fibonacci lattice), same as camera.rs."""
+    """n near-uniform directions on the sphere (Fibonacci lattice)."""
     i = torch.arange(n, dtype=torch.float64)
     z = 1.0 - 2.0 * (i + 0.5) / n
     r = torch.sqrt(1.0 - z * z)

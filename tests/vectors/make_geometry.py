@@ -2,7 +2,7 @@
 
 Python computes them once; tests in both languages (tests/test_sphere.py and
 crates/splat-core/tests/geometry_vectors.rs) check their implementation against them, so
-the two cannot drift. Regenerate only when the conventions in DESIGN.md change:
+the two cannot drift. Regenerate only when the conventions in docs/design.md change:
     .venv/bin/python tests/vectors/make_geometry.py
 """
 
@@ -79,7 +79,7 @@ def main() -> None:
 
     layouts = [{"n": n, "directions": sphere.view_directions(n).tolist()} for n in (20, 7, 1)]
     data = {
-        "about": "Shared geometry vectors (DESIGN.md conventions); written by make_geometry.py",
+        "about": "Shared geometry vectors (docs/design.md); written by make_geometry.py",
         "tolerance": 1e-9,
         "equirect_to_dir": equirect,
         "dir_to_equirect": dir_to_equirect,

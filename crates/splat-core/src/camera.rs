@@ -1,4 +1,4 @@
-//! The geometry conventions of DESIGN.md, mirrored from `python/pano4d/camera.py` and
+//! The geometry conventions of docs/design.md, mirrored from `python/pano4d/camera.py` and
 //! `python/pano4d/sphere.py`. `tests/vectors/geometry.json` (written by Python) keeps
 //! the two languages from drifting.
 //!

@@ -1,7 +1,7 @@
 //! splat-core: the Rust half of pano4d.
 //!
 //! - [`camera`]: the equirectangular mapping and pinhole cameras shared with Python
-//!   (DESIGN.md, "Conventions"), checked against `tests/vectors/geometry.json`.
+//!   (docs/design.md, "Conventions"), checked against `tests/vectors/geometry.json`.
 //! - [`gaussians`]: a CPU-side Gaussian set in the 3DGS parameterisation.
 //! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
 //! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).

@@ -1,5 +1,5 @@
 //! The Rust geometry against `tests/vectors/geometry.json`, written by the Python side,
-//! so that the two implementations of DESIGN.md's conventions cannot drift.
+//! so that the two implementations of docs/design.md's conventions cannot drift.
 
 use glam::{DVec2, DVec3};
 use serde_json::Value;

@@ -2,7 +2,7 @@
 //! string shared with `pano4d render --camera`, and the "outside the supported region" hint.
 //!
 //! Pure maths, no UI: the app feeds it key states and mouse deltas. Conventions are
-//! DESIGN.md's: world +z up, the panorama's camera at the origin looking along +x, and the
+//! docs/design.md's: world +z up, the panorama's camera at the origin looking along +x, and the
 //! render camera in the OpenCV convention built by [`splat_core::camera::Camera::from_fov`].
 
 use glam::DVec3;

@@ -1,7 +1,7 @@
-"""Animating phase: a static panorama becomes a looping panoramic video (DESIGN.md).
+"""Animating phase: a static panorama becomes a looping panoramic video (docs/design.md).
 
-``pipeline.run_animate(cfg)`` runs the phase (``pano4d animate``); ``regions`` turns the
-config's regions into masks, a soft blend and motion; ``flow`` is the embedded animator
+``pipeline.run_animate(cfg)`` runs the phase (``pano4d animate``) on the masks, soft blend and
+motion of ``pano4d.regions``; ``flow`` is the embedded animator
 that needs no weights; the Panoramic Denoiser (``denoiser``, ``svd``, ``noise``, ``decode``)
 animates with a diffusers image-to-video model. Submodules are imported on use, so the
 default animator never loads diffusers.

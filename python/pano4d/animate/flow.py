@@ -4,7 +4,7 @@ After Holynski et al., "Animating Pictures with Eulerian Motion Fields" (CVPR 20
 sphere instead of the image plane:
 
 * **Motion field.** A static velocity field v(d) tangent to the sphere: each region's rigid
-  rotation Ω × d (see ``regions``; between and beyond regions Ω is filled in smoothly),
+  rotation Ω × d (see ``pano4d.regions``; between and beyond regions Ω is filled in smoothly),
   plus a small divergence-free low-frequency perturbation d × ∇ψ(d) so the texture swirls
   a little instead of sliding rigidly. Everything is a function of the 3D direction, so
   there is no seam and no pole.
@@ -35,7 +35,8 @@ import math
 import torch
 import torch.nn.functional as F
 
-from pano4d.animate.regions import Regions, angular_velocity_field, smoothstep
+from pano4d.regions import Regions, angular_velocity_field
+from pano4d.smoothstep import smoothstep
 from pano4d.sphere import dir_to_equirect, equirect_directions
 
 TRACE_MAX_WIDTH = 512  # traces are computed on a grid at most this wide
@@ -191,7 +192,7 @@ class FlowAnimator:
             # are not washed out. Two samples close together (near a pole, where the flow
             # is slow) are correlated and need less rescaling.
             apart = torch.linalg.norm(back_dirs - front_dirs, dim=-1, keepdim=True)
-            correlation = 1.0 - smoothstep(apart / math.radians(DECORRELATION_DEG))
+            correlation = 1.0 - smoothstep(0.0, math.radians(DECORRELATION_DEG), apart)
             mean = (1.0 - fade) * back_mean + fade * front_mean
             detail = (1.0 - fade) * (back - back_mean) + fade * (front - front_mean)
             spread = (1.0 - fade) ** 2 + fade**2 + 2.0 * fade * (1.0 - fade) * correlation

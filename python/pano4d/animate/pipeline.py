@@ -3,7 +3,7 @@
 Reads the panorama and the regions, runs the configured backend (``flow``: the embedded
 cinemagraph animator; ``svd``: the Panoramic Denoiser with a diffusers model), copies the
 input into every pixel outside the soft region blend so static pixels are bit-identical,
-and writes (DESIGN.md, "Files a run writes")::
+and writes (docs/design.md, "Files a run writes")::
 
     output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
     output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
@@ -33,12 +33,12 @@ import torch.nn.functional as F
 from rich.console import Console
 from rich.table import Table
 
-from pano4d.animate.regions import Regions, build_regions
 from pano4d.config import SceneConfig, config_hash
 from pano4d.fsutil import write_json_atomic
-from pano4d.imageio import read_image, read_panorama, write_image, write_video
+from pano4d.images import read_image, read_panorama, write_image, write_video
 from pano4d.metrics import VideoMetrics
-from pano4d.progress import progress_bar
+from pano4d.progress import Bars
+from pano4d.regions import Regions, build_regions
 
 PREVIEW_MAX_WIDTH = 2048
 
@@ -98,14 +98,12 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
     missing = [t for t, p in enumerate(paths) if not p.is_file()]
     if missing:
         render = _backend(cfg, panorama, regions)
-        with progress_bar(console=console) as bar:
-            task = bar.add_task(
-                f"animate ({cfg.animate.backend})", total=count, completed=count - len(missing)
-            )
+        with Bars(enabled=progress, console=console) as bars:
+            task = bars.task(f"animate ({cfg.animate.backend})", count, count - len(missing))
             for t in missing:
                 frame = enforce_static(render(t), panorama, regions.blend)
                 write_image(paths[t], frame, bits=None if suffix == ".exr" else 16)
-                bar.advance(task)
+                task.advance()
 
     metrics = _write_video_and_measure(paths, video, panorama, regions, cfg.animate.fps)
     metrics["backend"] = cfg.animate.backend

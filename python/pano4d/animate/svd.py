@@ -28,9 +28,10 @@ import torch.nn.functional as F
 from pano4d.animate.decode import tiled_equirect
 from pano4d.animate.denoiser import PanoramicDenoiser, latent_cameras
 from pano4d.animate.noise import footprints_for_views
-from pano4d.animate.regions import active_views, blend_weight
 from pano4d.camera import Camera
 from pano4d.config import AnimateConfig, SceneConfig
+from pano4d.device import resolve_device
+from pano4d.regions import active_views, blend_weight
 from pano4d.resample import equirect_sampler, equirect_to_perspective, sphere_sampler
 from pano4d.sphere import (
     Icosphere,
@@ -106,14 +107,6 @@ def resolve_dtype(name: str, device: torch.device) -> torch.dtype:
     if name == "auto":
         return torch.float16 if device.type == "cuda" else torch.float32
     return {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}[name]
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("device 'cuda' was asked for but torch sees no CUDA GPU")
-    return torch.device(name)
 
 
 @dataclass

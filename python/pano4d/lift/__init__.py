@@ -1,9 +1,12 @@
 """Lifting phase (Dynamic Panoramic Lifting): panoramic video → per-timestamp Gaussians.
 
+``pipeline``: the stages in order, from the animation frames to the optimised sets.
 ``depth``: monocular depth backends (layout prior, depth file, DPT / Depth Anything).
 ``align``: spatial-temporal alignment of per-view depth into one spherical depth per frame.
-``gaussians``: initial Gaussians from the aligned depth, static/dynamic split.
+``initial``: initial Gaussians from the aligned depth, static/dynamic split.
 ``optimize``: per-timestamp optimisation (L_rgb, L_temporal, L_geo, L_sem), densify/prune.
 ``features``: the DINOv2 feature backend for L_sem.
-The pipeline that runs them in order, with checkpoints, is ``pano4d.train``.
+``checkpoints``: each stage's saved state, so a killed run resumes.
+``export``: the files a run writes (scene.ply4d, preview, contact sheet, metrics).
+``pano4d.train`` runs the animating phase, then this one.
 """

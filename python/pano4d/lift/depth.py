@@ -121,7 +121,7 @@ class FileDepth(DepthBackend):
     name = "file"
 
     def __init__(self, path: Path, far: float) -> None:
-        from pano4d.imageio import read_depth
+        from pano4d.images import read_depth
 
         self.path = path
         self.depth = torch.from_numpy(read_depth(path)).clamp(max=far)

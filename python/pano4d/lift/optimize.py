@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
 import torch
@@ -387,11 +386,3 @@ class GaussianTrainer:
         self.grad_accum = state["grad_accum"].to(self.device)
         self.grad_count = state["grad_count"].to(self.device)
         self.last_loss = float(state["last_loss"])
-
-
-def save_atomic(path: Path, payload: dict[str, Any]) -> None:
-    """torch.save through a temporary file and a rename."""
-    from pano4d.fsutil import atomic_path
-
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)

@@ -1,4 +1,4 @@
-"""Image, depth, mask and video files (DESIGN.md, "Conventions").
+"""Image, depth, mask and video files (docs/design.md, "Conventions").
 
 Inside the pipeline images are float32 (H, W, C) in [0, 1]: the file's values, no colour
 conversion. 8/16-bit PNG and JPEG are divided by 255 / 65535; EXR keeps its float values.

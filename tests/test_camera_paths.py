@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 from pathlib import Path
@@ -10,10 +11,11 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from pano4d import imageio, ply4d, views
+from pano4d import camera_paths, images, ply4d
 from pano4d.camera import Camera
 from pano4d.cli import app
 from pano4d.gaussians import Gaussians
+from pano4d.sphere import dir_to_equirect
 
 runner = CliRunner()
 
@@ -37,22 +39,22 @@ def red_wall(n: int = 64) -> Gaussians:
 
 
 def test_parse_camera_shapes_and_errors(tmp_path: Path) -> None:
-    default = views.parse_camera(None, 64, 48)
+    default = camera_paths.parse_camera(None, 64, 48)
     assert default.position.tolist() == [0, 0, 0]
     assert default.forward.tolist() == pytest.approx([1, 0, 0])
-    pose = views.parse_camera(
+    pose = camera_paths.parse_camera(
         '{"position": [1, 2, 3], "forward": [0, 1, 0], "fov_deg": 60}', 64, 48
     )
     assert pose.position.tolist() == pytest.approx([1, 2, 3])
     assert pose.fov_deg()[0] == pytest.approx(60)
     f = tmp_path / "cam.json"
     f.write_text(json.dumps(Camera.from_fov(70, 32, 24, (0, 1, 0), (1, 1, 0)).to_dict()))
-    from_file = views.parse_camera(str(f), 32, 24)
+    from_file = camera_paths.parse_camera(str(f), 32, 24)
     assert from_file.position.tolist() == pytest.approx([0, 1, 0])
     with pytest.raises(ValueError, match="forward"):
-        views.parse_camera('{"position": [0, 0, 0]}', 64, 48)
+        camera_paths.parse_camera('{"position": [0, 0, 0]}', 64, 48)
     with pytest.raises(ValueError, match="JSON"):
-        views.parse_camera("{not json", 64, 48)
+        camera_paths.parse_camera("{not json", 64, 48)
 
 
 def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) -> None:
@@ -63,7 +65,7 @@ def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) 
         app, ["render", str(scene), "--out", str(out), "--width", "64", "--height", "48"]
     )
     assert result.exit_code == 0, result.output
-    img = imageio.read_image(out)
+    img = images.read_image(out)
     assert img.shape == (48, 64, 3)
     centre = img[20:28, 28:36]
     assert centre[..., 0].mean() > 0.9 and centre[..., 1:].mean() < 0.1
@@ -84,7 +86,7 @@ def test_render_still_from_the_panorama_viewpoint_sees_the_wall(tmp_path: Path) 
         ],
     )
     assert back.exit_code == 0, back.output
-    assert imageio.read_image(out).max() == 0.0
+    assert images.read_image(out).max() == 0.0
 
 
 def test_render_errors_are_clear(tmp_path: Path) -> None:
@@ -146,8 +148,27 @@ def test_turntable_video_has_the_frames_and_time_advances(tmp_path: Path) -> Non
         check=True,
     )
     assert int(probe.stdout.strip()) == 4
-    cams = list(views.path_cameras("fly-through", 8, 8, 4, radius=2.0))
+    cams = list(camera_paths.path_cameras("fly-through", 8, 8, 4, radius=2.0))
     assert cams[0].position.tolist() == pytest.approx([0, 0, 0])
     assert float(torch.linalg.norm(cams[2].position)) == pytest.approx(4.0)
     with pytest.raises(ValueError, match="turntable"):
-        list(views.path_cameras("orbit", 8, 8, 4, radius=1.0))
+        list(camera_paths.path_cameras("orbit", 8, 8, 4, radius=1.0))
+
+
+def test_turntable_turns_right_and_its_orbit_stands_to_the_left() -> None:
+    """One turntable for `pano4d render --path turntable` and train's preview: the view's
+    centre sweeps the panorama left to right (increasing u: the image's right is the
+    viewer's right), and on an orbit each camera stands to the left of where it looks."""
+    cams = camera_paths.turntable(32, 24, 8)
+    forwards = torch.stack([c.forward for c in cams])
+    assert torch.allclose(forwards[:, 2], torch.zeros(8, dtype=forwards.dtype), atol=1e-12)
+    u, _ = dir_to_equirect(forwards, 360, 180)
+    assert torch.allclose(torch.diff(u) % 360, torch.full((7,), 45.0, dtype=u.dtype))
+    # Turning right: each camera's right (its x axis) leans towards where the next one looks.
+    for cam, after in itertools.pairwise(cams):
+        assert float(cam.R[0] @ after.forward) > 0.5
+    orbit = camera_paths.turntable(32, 24, 8, orbit=2.0)
+    for cam, still in zip(orbit, cams, strict=True):
+        assert torch.allclose(cam.forward, still.forward)
+        assert float(torch.linalg.norm(cam.position)) == pytest.approx(2.0)
+        assert float(cam.R[0] @ cam.position) == pytest.approx(-2.0)  # left of its view

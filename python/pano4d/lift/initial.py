@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 
 from pano4d.gaussians import Gaussians, rgb_to_sh_dc, sh_coeffs_for_degree
 from pano4d.resample import equirect_sampler
@@ -28,27 +27,6 @@ def init_sphere(width: int, init_stride: int) -> Icosphere:
     if init_stride < 1:
         raise ValueError(f"init_stride must be ≥ 1, got {init_stride}")
     return icosphere(icosphere_frequency_for_spacing(init_stride * 2 * math.pi / width))
-
-
-def dilate_mask(mask: torch.Tensor, radius: int) -> torch.Tensor:
-    """Dilate an equirect bool mask (H, W) by ``radius`` pixels; wraps at the seam."""
-    if radius <= 0:
-        return mask.clone()
-    x = mask.to(torch.float32)[None, None]
-    x = F.pad(x, (radius, radius, 0, 0), mode="circular")
-    x = F.pad(x, (0, 0, radius, radius), mode="replicate")
-    return F.max_pool2d(x, 2 * radius + 1, stride=1)[0, 0] > 0.5
-
-
-def moving_mask(
-    frames: torch.Tensor, regions: torch.Tensor | None, threshold: float = 1.0 / 255.0
-) -> torch.Tensor:
-    """(H, W) bool: pixels in the configured regions or changing anywhere in the video.
-
-    ``frames`` (L, H, W, 3); ``regions`` (H, W) bool or None.
-    """
-    changed = (frames - frames[:1]).abs().amax(dim=(0, 3)) > threshold
-    return changed if regions is None else changed | regions.to(changed.device)
 
 
 def points_in_mask(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

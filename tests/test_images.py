@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pano4d import imageio
-from pano4d.imageio import (
+from pano4d import images
+from pano4d.images import (
     ImageError,
     read_depth,
     read_image,
@@ -354,7 +354,7 @@ def test_write_video_errors_leave_no_file(tmp_path: Path, monkeypatch: pytest.Mo
     with pytest.raises(ImageError, match="fps must be a positive number"):
         write_video(target, mixed[:1], fps=0)
     assert list(tmp_path.iterdir()) == []
-    monkeypatch.setattr(imageio.shutil, "which", lambda name: None)
+    monkeypatch.setattr(images.shutil, "which", lambda name: None)
     with pytest.raises(ImageError, match=r"ffmpeg is not on PATH; install it"):
         write_video(target, mixed[:1], fps=7)
     assert shutil.which("ffmpeg") is None  # the patch is what the writer saw

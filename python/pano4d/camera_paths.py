@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pano4d import imageio, ply4d
+from pano4d import images, ply4d
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.render import render
@@ -67,27 +67,48 @@ def to_image(rgb: torch.Tensor) -> np.ndarray:
 
 def render_still(scene: Path, camera: Camera, time: int, out: Path, backend: str = "wgpu") -> None:
     g, _ = load_gaussians(scene, time)
-    imageio.write_image(out, to_image(render(g, camera, backend=backend).rgb))
+    images.write_image(out, to_image(render(g, camera, backend=backend).rgb))
 
 
-def path_cameras(
-    kind: str, width: int, height: int, frames: int, radius: float
-) -> Iterator[Camera]:
-    """``turntable``: a full turn in place at the origin. ``fly-through``: a loop of the given
-    radius around the origin at eye height, looking along the direction of travel."""
+def turntable(
+    width: int, height: int, frames: int, orbit: float = 0.0, fov_deg: float = DEFAULT_FOV_DEG
+) -> list[Camera]:
+    """``frames`` level cameras making one turn to the right: the view's centre sweeps the
+    panorama from left to right (increasing u), since the image's right is the viewer's
+    right (docs/design.md, "Conventions"). With ``orbit`` > 0 each camera stands that far to
+    the left of the origin, seen along its view, so the path circles the origin and shows
+    parallax."""
+    cams = []
     for i in range(frames):
         a = 2 * math.pi * i / frames
-        if kind == "turntable":
-            yield Camera.from_fov(
-                DEFAULT_FOV_DEG, width, height, (0, 0, 0), (math.cos(a), -math.sin(a), 0)
-            )
-        elif kind == "fly-through":
-            pos = (radius * math.sin(a), radius * (1 - math.cos(a)), 0.0)
-            yield Camera.from_fov(
-                DEFAULT_FOV_DEG, width, height, pos, (math.cos(a), math.sin(a), 0)
-            )
-        else:
-            raise ValueError(f"--path must be 'turntable' or 'fly-through', got {kind!r}")
+        forward = (math.cos(a), -math.sin(a), 0.0)
+        left = (math.sin(a), math.cos(a), 0.0)  # up × forward
+        position = tuple(orbit * c for c in left)
+        cams.append(Camera.from_fov(fov_deg, width, height, position, forward))
+    return cams
+
+
+def fly_through(width: int, height: int, frames: int, radius: float) -> list[Camera]:
+    """A loop of the given radius through the origin at eye height, looking along the
+    direction of travel."""
+    cams = []
+    for i in range(frames):
+        a = 2 * math.pi * i / frames
+        pos = (radius * math.sin(a), radius * (1 - math.cos(a)), 0.0)
+        cams.append(
+            Camera.from_fov(DEFAULT_FOV_DEG, width, height, pos, (math.cos(a), math.sin(a), 0))
+        )
+    return cams
+
+
+def path_cameras(kind: str, width: int, height: int, frames: int, radius: float) -> list[Camera]:
+    """The cameras of ``pano4d render --path``: ``turntable`` (a full turn in place at the
+    origin) or ``fly-through`` (a loop of ``radius``)."""
+    if kind == "turntable":
+        return turntable(width, height, frames)
+    if kind == "fly-through":
+        return fly_through(width, height, frames, radius)
+    raise ValueError(f"--path must be 'turntable' or 'fly-through', got {kind!r}")
 
 
 def render_path(
@@ -103,9 +124,9 @@ def render_path(
     """A video along a camera path; time advances through the scene's timestamps, looping."""
     first, num_times = load_gaussians(scene, 0)
     radius = 0.05 * float(torch.linalg.norm(first.means, dim=-1).median()) if len(first) else 1.0
-    cams = list(path_cameras(kind, width, height, frames, radius))
+    cams = path_cameras(kind, width, height, frames, radius)
 
-    def images() -> Iterator[np.ndarray]:
+    def rendered() -> Iterator[np.ndarray]:
         cached: dict[int, Gaussians] = {0: first}
         for i, cam in enumerate(cams):
             t = i % num_times
@@ -114,4 +135,4 @@ def render_path(
                 cached[t] = load_gaussians(scene, t)[0]
             yield to_image(render(cached[t], cam, backend=backend).rgb)
 
-    imageio.write_video(out, images(), fps)
+    images.write_video(out, rendered(), fps)

@@ -1,0 +1,211 @@
+"""The files a lifting run writes (docs/design.md, "Files a run writes").
+
+``output/scene.ply4d`` (the static set once, a dynamic set per timestamp), ``preview.mp4``
+(a turntable at the origin, then on a small orbit), ``contact.png`` (ground-truth views
+beside their renders when gt/views.json lies beside the panorama, else test views of the
+moving region at a few times) and ``metrics.json`` (timings, Gaussian counts, sizes, what
+storing the static part once saved, novel-view PSNR/SSIM).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pano4d import __version__, ply4d
+from pano4d.camera import Camera
+from pano4d.camera_paths import turntable
+from pano4d.config import config_hash
+from pano4d.fsutil import write_json_atomic
+from pano4d.gaussians import Gaussians
+from pano4d.images import read_image, write_contact_sheet, write_video
+from pano4d.lift.optimize import moved_camera
+from pano4d.lift.pipeline import (
+    Alignment,
+    DynamicSets,
+    InitialSets,
+    Lifted,
+    LiftInputs,
+    StaticSet,
+)
+from pano4d.metrics import novel_view_metrics
+
+PREVIEW_FRAMES = 24  # per turntable (origin, then the displaced orbit)
+PREVIEW_ORBIT = 0.01  # orbit radius as a fraction of the median scene depth
+CONTACT_TIMES = 3
+
+
+def export(lifted: Lifted) -> dict[str, Any]:
+    """Write every output file of a lifted scene; returns the metrics (also metrics.json)."""
+    inputs, alignment, initial = lifted.inputs, lifted.alignment, lifted.initial
+    static, dynamic = lifted.static, lifted.dynamic
+    start = time.perf_counter()
+    out = Path(inputs.cfg.output)
+    scene = scene4d(inputs, static.gaussians, dynamic.gaussians, alignment, initial)
+    ply4d.write(out / "scene.ply4d", scene)
+    render = inputs.render
+    size = inputs.knobs.view_size
+    w, h = 2 * size, (2 * size * 9 // 16) // 2 * 2  # 16:9, as wide as two views
+    orbit = PREVIEW_ORBIT * alignment.median_depth
+    cams = turntable(w, h, PREVIEW_FRAMES) + turntable(w, h, PREVIEW_FRAMES, orbit)
+    on_device = [scene.at(t).to(inputs.device) for t in range(scene.num_times)]
+    with torch.no_grad():
+        frames = [
+            render(on_device[i % scene.num_times], c).rgb.clamp(0, 1).cpu().numpy()
+            for i, c in enumerate(cams)
+        ]
+    write_video(out / "preview.mp4", frames, inputs.cfg.animate.fps)
+
+    gt = read_gt_views(Path(inputs.cfg.panorama))
+    metrics_views = (
+        novel_view_metrics(scene, gt, lambda g, c: render(g.to(inputs.device), c)) if gt else None
+    )
+    tiles, labels = [], []
+    if gt:
+        for v in gt[:8]:
+            t = min(int(v["time"]), scene.num_times - 1)
+            with torch.no_grad():
+                rgb = render(on_device[t], v["camera"]).rgb.clamp(0, 1).cpu()
+            pct = f"{100 * float(v.get('displacement_fraction', 0)):g}%"
+            tiles += [v["pixels"].numpy(), rgb.numpy()]
+            labels += [f"gt t={t} {pct}", f"render t={t}"]
+        columns = 4
+    else:
+        times = sorted({0, scene.num_times // 2, scene.num_times - 1})[:CONTACT_TIMES]
+        test = contact_cameras(inputs, alignment.median_depth)
+        for t in times:
+            for c in test:
+                with torch.no_grad():
+                    tiles.append(render(on_device[t], c).rgb.clamp(0, 1).cpu().numpy())
+                labels.append(f"t={t}")
+        columns = len(test)
+    write_contact_sheet(out / "contact.png", tiles, columns, labels)
+    timings = {**lifted.timings, "export": time.perf_counter() - start}
+
+    metrics = run_metrics(
+        inputs, scene, alignment, initial, static, dynamic, timings, out / "scene.ply4d",
+        metrics_views,
+    )  # fmt: skip
+    write_json_atomic(out / "metrics.json", metrics)
+    return metrics
+
+
+def scene4d(
+    inputs: LiftInputs,
+    static: Gaussians,
+    dynamic: list[Gaussians],
+    alignment: Alignment,
+    initial: InitialSets,
+) -> ply4d.Scene4D:
+    """The .ply4d scene: the static set once, a dynamic set per timestamp, provenance."""
+    cfg = inputs.cfg
+    fps = cfg.animate.fps
+    return ply4d.Scene4D(
+        static=static.detach().to("cpu"),
+        dynamic=[g.detach().to("cpu") for g in dynamic],
+        timestamps=[t / fps for t in range(len(dynamic))],
+        fps=fps,
+        camera={
+            "position": [0.0, 0.0, 0.0],
+            "params": {
+                "views": len(inputs.cameras),
+                "fov_deg": cfg.lift.fov_deg,
+                "view_size": inputs.knobs.view_size,
+            },
+        },
+        provenance={"tool_version": __version__, "config_hash": config_hash(cfg)},
+        extra={
+            "preset": cfg.preset,
+            "knobs": inputs.knobs.model_dump(),
+            "median_depth": alignment.median_depth,
+            "init_points": initial.points,
+        },
+    )
+
+
+def read_gt_views(panorama: Path) -> list[dict[str, Any]]:
+    """gt/views.json entries beside the panorama (with 'camera' and 'image' loaded), or []."""
+    path = panorama.parent / "gt" / "views.json"
+    if not path.is_file():
+        return []
+    data = json.loads(path.read_text())
+    views = []
+    for entry in data["views"]:
+        image = torch.from_numpy(
+            np.ascontiguousarray(read_image(path.parent / entry["image"])[..., :3])
+        )
+        views.append({**entry, "camera": Camera.from_dict(entry), "pixels": image})
+    return views
+
+
+def contact_cameras(inputs: LiftInputs, median_depth: float, count: int = 4) -> list[Camera]:
+    """Test views for the contact sheet: those that see most of the moving region, then the
+    most level ones, each moved sideways by 1 % of the median depth to show parallax."""
+    cameras = inputs.cameras
+    n = len(cameras)
+    seen = [float(inputs.moving_in_view(c).mean()) for c in cameras]
+    moving = [i for i in sorted(range(n), key=lambda i: -seen[i]) if seen[i] > 0][: count // 2]
+    level = sorted((i for i in range(n) if i not in moving),
+                   key=lambda i: abs(float(cameras[i].forward[2])))  # fmt: skip
+    chosen = (moving + level)[:count]
+    offset = PREVIEW_ORBIT * median_depth
+    cams = []
+    for i in chosen:
+        right = cameras[i].R[0]  # the camera's x axis in world coordinates
+        cams.append(moved_camera(cameras[i], right * offset))
+    return cams
+
+
+def run_metrics(
+    inputs: LiftInputs,
+    scene: ply4d.Scene4D,
+    alignment: Alignment,
+    initial: InitialSets,
+    static: StaticSet,
+    dynamic: DynamicSets,
+    timings: dict[str, float],
+    path: Path,
+    views: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """metrics.json: what the run took and made, and what storing the static set once saved
+    against storing (and training) every timestamp whole."""
+    n_static = len(scene.static)
+    n_dynamic = [len(g) for g in scene.dynamic]
+    stored = n_static + sum(n_dynamic)
+    whole = sum(n_static + n for n in n_dynamic)  # every timestamp stored whole
+    size = path.stat().st_size
+    bytes_per = size / max(stored, 1)
+    iters = inputs.knobs.gaussian_iterations
+    step = dynamic.full_scene_step if dynamic.full_scene_step is not None else static.per_step
+    whole_seconds = len(scene.dynamic) * iters * step
+    spent = static.seconds + dynamic.seconds
+    cfg = inputs.cfg
+    return {
+        "preset": cfg.preset,
+        "knobs": inputs.knobs.model_dump(),
+        "config_hash": config_hash(cfg),
+        "working_size": [int(inputs.frames.shape[2]), int(inputs.frames.shape[1])],
+        "timings_s": timings,
+        "gaussians": {
+            "static": n_static,
+            "dynamic": n_dynamic,
+            "stored": stored,
+            "initial_points": initial.points,
+        },
+        "moving_fraction": float(inputs.moving.float().mean()),
+        "median_depth": alignment.median_depth,
+        "size_bytes": size,
+        "saving": {
+            "storage_whole_bytes_estimate": int(whole * bytes_per),
+            "storage_ratio": size / max(whole * bytes_per, 1.0),
+            "train_whole_seconds_estimate": whole_seconds,
+            "train_seconds": spent,
+            "train_ratio": spent / whole_seconds if whole_seconds > 0 else None,
+        },
+        "novel_views": views,
+    }

@@ -1,0 +1,476 @@
+"""The lifting phase in order (Dynamic Panoramic Lifting): animation frames → 4D Gaussians.
+
+``lift(cfg, frames_dir, …)`` runs the stages, each a function from typed inputs to typed
+outputs, each checkpointed atomically in output/checkpoints/ (``lift.checkpoints``: a rerun
+after a kill skips what is done and resumes an optimisation from its last checkpoint):
+
+1. ``prepare``          frames at the working resolution, the moving region, the views;
+2. ``estimate_depth``   Θ per frame and view (``lift.depth``);
+3. ``align_depth``      spherical depth per frame (``lift.align``), frames after the first
+                        re-fitted only in the moving region;
+4. ``initial_sets``     Gaussians from frame 0's depth, split into a static and a dynamic
+                        set by the moving region (``lift.initial``);
+5. ``fit_static``       the static set, optimised once on frame 0 with the moving region
+                        masked out;
+6. ``fit_dynamic``      per timestamp, the dynamic set, warm-started from t − 1 and
+                        optimised against the frozen static set, in the views that see it;
+then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json.
+
+The lifting works at the resolution the views need: frames are area-downsampled to an
+equirect whose pixel matches a view pixel (``view_size`` over ``fov_deg``), never above the
+input's. Every optimiser is built by ``make_trainer``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pano4d.camera import Camera
+from pano4d.config import PresetKnobs, SceneConfig
+from pano4d.device import resolve_device
+from pano4d.gaussians import Gaussians
+from pano4d.images import read_image
+from pano4d.lift.align import DepthAligner, FrameAlignment
+from pano4d.lift.checkpoints import Checkpoints, TrainError
+from pano4d.lift.depth import make_depth_backend
+from pano4d.lift.features import make_feature_model
+from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
+from pano4d.lift.optimize import FeatureModel, GaussianTrainer, Knobs, RenderFn, TrainViews
+from pano4d.progress import Bars, Task
+from pano4d.regions import grow, moving_in_video, moving_mask
+from pano4d.resample import equirect_to_perspective
+from pano4d.sphere import view_layout
+
+# on_step(stage, step): called after every optimisation step of the align, static and
+# dynamic stages (tests use it to interrupt a run at a known point).
+StepHook = Callable[[str, int], None]
+
+
+# --- 1. inputs -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LiftInputs:
+    """What every stage reads, fixed once by ``prepare``."""
+
+    cfg: SceneConfig
+    knobs: PresetKnobs
+    device: torch.device
+    cameras: list[Camera]  # the view layout, views of knobs.view_size pixels
+    frames: torch.Tensor  # (L, H, W, 3) at the working resolution
+    moving: torch.Tensor  # (H, W) bool, the grown moving region at the working resolution
+    full_width: int  # the input panorama's width
+    render_backend: str  # "wgpu" | "torch"
+
+    def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
+        from pano4d.render import render
+
+        return render(g, camera, background=background, backend=self.render_backend)
+
+    def moving_in_view(self, camera: Camera) -> torch.Tensor:
+        """The moving region seen by ``camera``: (h, w) float in [0, 1]."""
+        return equirect_to_perspective(self.moving.to(torch.float32), camera)
+
+
+def working_size(width: int, view_size: int, fov_deg: float) -> tuple[int, int]:
+    """Equirect size (W, H) whose pixel matches a view pixel, at most the input's width."""
+    target = round(360.0 * view_size / fov_deg / 2) * 2
+    w = min(width, max(64, target))
+    return w, w // 2
+
+
+def read_frames(
+    folder: Path, count: int, size: tuple[int, int], suffix: str = ".png"
+) -> torch.Tensor:
+    """The animation frames (L, H, W, 3) area-downsampled to ``size`` (W, H)."""
+    frames = []
+    for t in range(count):
+        path = folder / f"{t:04d}{suffix}"
+        if not path.is_file():
+            raise TrainError(f"{path}: animation frame missing (run `pano4d animate` again)")
+        image = torch.from_numpy(np.ascontiguousarray(read_image(path)[..., :3]))
+        frames.append(_resize(image, size))
+    return torch.stack(frames)
+
+
+def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    w, h = size
+    if image.shape[:2] == (h, w):
+        return image.to(torch.float32)
+    x = image.permute(2, 0, 1)[None].to(torch.float32)
+    return F.interpolate(x, size=(h, w), mode="area")[0].permute(1, 2, 0).contiguous()
+
+
+def frame_suffix(cfg: SceneConfig) -> str:
+    """The animating phase writes EXR frames for an EXR panorama, PNG otherwise."""
+    return ".exr" if Path(cfg.panorama).suffix.lower() == ".exr" else ".png"
+
+
+def moving_region(
+    cfg: SceneConfig, frames: torch.Tensor, full_size: tuple[int, int]
+) -> torch.Tensor:
+    """(H, W) bool at the resolution of ``frames`` (L, H, W, 3): the configured regions
+    (masks made at the panorama's ``full_size`` (W, H)) and every pixel that changes in the
+    video, grown by regions.MARGIN_DEG on the sphere, as the animating phase grows them."""
+    height, width = frames.shape[1:3]
+    regions = moving_mask(cfg, *full_size)
+    regions = F.interpolate(regions[None, None].float(), size=(height, width), mode="area")
+    return grow(moving_in_video(frames, regions[0, 0] > 0))
+
+
+def prepare(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftInputs:
+    """The frames at the working resolution and what moves in them (``moving_region``)."""
+    suffix = frame_suffix(cfg)
+    first = read_image(frames_dir / f"0000{suffix}")
+    full_h, full_w = first.shape[:2]
+    knobs = cfg.resolved_preset(full_w)
+    size = working_size(full_w, knobs.view_size, cfg.lift.fov_deg)
+    frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
+    return LiftInputs(
+        cfg=cfg,
+        knobs=knobs,
+        device=resolve_device(cfg.device),
+        cameras=view_layout(cfg.lift.views, cfg.lift.fov_deg, knobs.view_size),
+        frames=frames,
+        moving=moving_region(cfg, frames, (full_w, full_h)),
+        full_width=full_w,
+        render_backend=render_backend,
+    )
+
+
+# --- 2. depth --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ViewDepth:
+    depth: torch.Tensor  # (L, n, h, w) ray length per frame and view
+    seconds: float
+
+
+def estimate_depth(inputs: LiftInputs, checkpoints: Checkpoints, bars: Bars) -> ViewDepth:
+    start = time.perf_counter()
+    state = checkpoints.load("depth") or {"depth": []}
+    done: list[torch.Tensor] = list(state["depth"])
+    total = len(inputs.frames)
+    if len(done) < total:
+        backend = make_depth_backend(inputs.cfg.depth, inputs.device)
+        task = bars.task(f"depth ({backend.name})", total, len(done))
+        for t in range(len(done), total):
+            frame = inputs.frames[t].to(inputs.device)
+            done.append(backend.view_depth(frame, inputs.cameras).cpu())
+            checkpoints.save("depth", {"depth": done})
+            task.update(t + 1, loss=math.nan)
+    return ViewDepth(torch.stack(done), time.perf_counter() - start)
+
+
+# --- 3. alignment ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Alignment:
+    frames: list[FrameAlignment]
+    depths: list[torch.Tensor]  # (H, W) aligned ray length per frame, working resolution
+    median_depth: float  # of frame 0, sky and other far depth left out
+    seconds: float
+
+
+def align_depth(
+    inputs: LiftInputs,
+    view_depth: torch.Tensor,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    on_step: StepHook | None,
+) -> Alignment:
+    start = time.perf_counter()
+    iterations = inputs.knobs.align_iterations
+    aligner = DepthAligner(inputs.cameras, iterations=iterations, device=inputs.device)
+    moving_points = points_in_mask(aligner.ico.points, inputs.moving)
+    state = checkpoints.load("align") or {"frames": []}
+    done = [FrameAlignment.from_dict(d, inputs.device) for d in state["frames"]]
+    for t in range(len(done), len(inputs.frames)):
+        total = iterations if t == 0 else aligner.warm_iterations
+        task = bars.task(f"align frame {t}", total)
+
+        def step(i: int, n: int, loss: float, _task: Task = task) -> None:
+            _task.update(i + 1, loss=loss)
+            if on_step is not None:
+                on_step("align", i)
+
+        previous = done[-1] if done else None
+        done.append(aligner.fit(view_depth[t], previous, moving_points if done else None, step))
+        checkpoints.save("align", {"frames": [d.to_dict() for d in done]})
+    seconds = time.perf_counter() - start
+    height, width = inputs.frames.shape[1:3]
+    depths = [aligner.equirect_depth(a, width, height) for a in done]
+    far = 0.9 * inputs.cfg.depth.far
+    finite = depths[0][depths[0] < far]
+    median = float(finite.median()) if finite.numel() else float(depths[0].median())
+    return Alignment(done, depths, median, seconds)
+
+
+# --- 4. initial Gaussians --------------------------------------------------------------------
+@dataclass(frozen=True)
+class InitialSets:
+    static: Gaussians
+    dynamic: Gaussians
+    points: int  # icosphere samples, static + dynamic
+    spacing_rad: float
+
+
+def initial_sets(inputs: LiftInputs, depth0: torch.Tensor) -> InitialSets:
+    """One Gaussian per icosphere sample at frame 0's aligned depth ``depth0`` (H, W); the
+    samples in the moving region form the dynamic set, the rest the static set."""
+    knobs = inputs.knobs
+    stride = knobs.init_stride
+    ico = init_sphere(inputs.full_width, stride)
+    while len(ico) > knobs.max_gaussians:  # keep the initial set within budget
+        stride += 1
+        ico = init_sphere(inputs.full_width, stride)
+    points = ico.points
+    dynamic = points_in_mask(points, inputs.moving)
+    frame0 = inputs.frames[0].to(inputs.device)
+    depth = depth0.to(inputs.device)
+    static = init_gaussians(points[~dynamic], ico.spacing_rad, depth, frame0, knobs.sh_degree)
+    moving = init_gaussians(points[dynamic], ico.spacing_rad, depth, frame0, knobs.sh_degree)
+    return InitialSets(static, moving, len(points), ico.spacing_rad)
+
+
+# --- 5. and 6. optimisation ------------------------------------------------------------------
+def make_trainer(
+    gaussians: Gaussians,
+    views: TrainViews,
+    knobs: Knobs,
+    render: RenderFn,
+    context: Gaussians | None = None,
+    features: FeatureModel | None = None,
+    seed: int = 0,
+) -> GaussianTrainer:
+    """The optimiser of one set of Gaussians: the one place the stages build one."""
+    return GaussianTrainer(
+        gaussians, views, knobs, render, context=context, features=features, seed=seed
+    )
+
+
+def trainer_knobs(knobs: PresetKnobs, iterations: int, budget: int, median_depth: float) -> Knobs:
+    return Knobs(
+        iterations=iterations,
+        lambda_temporal=knobs.lambda_temporal,
+        lambda_geo=knobs.lambda_geo,
+        lambda_sem=knobs.lambda_sem,
+        densify=knobs.densify,
+        max_gaussians=max(1, budget),
+        densify_every=max(10, iterations // 10),
+        sem_scale=median_depth,
+    )
+
+
+def views_of_frame(
+    inputs: LiftInputs,
+    t: int,
+    view_depth: torch.Tensor,
+    weight_fn: Callable[[Camera], torch.Tensor],
+    indices: list[int] | None = None,
+) -> TrainViews:
+    """Targets, loss weights and Θ's z-depth of frame ``t`` in the views ``indices``."""
+    indices = indices if indices is not None else list(range(len(inputs.cameras)))
+    cams = [inputs.cameras[i] for i in indices]
+    image = inputs.frames[t].permute(2, 0, 1)
+    targets = torch.stack([equirect_to_perspective(image, c).permute(1, 2, 0) for c in cams])
+    weights = torch.stack([weight_fn(c) for c in cams])
+    z = torch.stack([view_depth[i] / inputs.cameras[i].z_to_ray_factor() for i in indices])
+    d = inputs.device
+    return TrainViews(cams, targets.to(d), weights.to(d), z.to(d))
+
+
+def run_trainer(
+    trainer: GaussianTrainer,
+    checkpoints: Checkpoints,
+    name: str,
+    label: str,
+    bars: Bars,
+    on_step: StepHook | None,
+    extra: Callable[[], dict[str, Any]],
+) -> Gaussians:
+    """Run a trainer with a progress bar and a checkpoint every ``checkpoints.every`` steps
+    (``extra()`` adds the stage's own state to it)."""
+    task = bars.task(label, trainer.knobs.iterations, trainer.step)
+
+    def step(tr: GaussianTrainer) -> None:
+        task.update(tr.step, loss=tr.last_loss)
+        if tr.step % checkpoints.every == 0 and tr.step < tr.knobs.iterations:
+            checkpoints.save(name, {**extra(), "trainer": tr.state_dict()})
+        if on_step is not None:
+            on_step(name, tr.step)
+
+    return trainer.run(step)
+
+
+@dataclass(frozen=True)
+class StaticSet:
+    gaussians: Gaussians
+    seconds: float  # optimisation time, over every resumed part
+    per_step: float  # seconds per step of this run (what whole-timestamp training would cost)
+
+
+def fit_static(
+    inputs: LiftInputs,
+    initial: Gaussians,
+    view_depth0: torch.Tensor,
+    median_depth: float,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    on_step: StepHook | None,
+) -> StaticSet:
+    state = checkpoints.load("static") or {"seconds": 0.0}
+    if "done" in state:
+        done = Gaussians.from_numpy(state["done"], inputs.device)
+        return StaticSet(done, state["seconds"], state["per_step"])
+    knobs = inputs.knobs
+    iterations = knobs.gaussian_iterations
+    views = views_of_frame(
+        inputs,
+        0,
+        view_depth0,
+        lambda c: (inputs.moving_in_view(c) < 0.5).to(torch.float32),
+    )
+    trainer = make_trainer(
+        initial,
+        views,
+        trainer_knobs(knobs, iterations, knobs.max_gaussians, median_depth),
+        inputs.render,
+        features=make_feature_model(inputs.cfg.features, inputs.device),
+        seed=inputs.cfg.seed,
+    )
+    if "trainer" in state:
+        trainer.load_state_dict(state["trainer"])
+    start, first_step = time.perf_counter(), trainer.step
+
+    def seconds() -> float:
+        return float(state["seconds"]) + time.perf_counter() - start
+
+    result = run_trainer(
+        trainer, checkpoints, "static", "static set", bars, on_step,
+        lambda: {"seconds": seconds()},
+    )  # fmt: skip
+    per_step = (time.perf_counter() - start) / max(1, trainer.step - first_step)
+    checkpoints.save(
+        "static", {"done": result.to_numpy(), "seconds": seconds(), "per_step": per_step}
+    )
+    return StaticSet(result, seconds(), per_step)
+
+
+@dataclass(frozen=True)
+class DynamicSets:
+    gaussians: list[Gaussians]  # one set per timestamp
+    seconds: float
+    # Seconds per step when a step renders static + dynamic, as whole-timestamp training
+    # would; None when nothing was optimised.
+    full_scene_step: float | None
+
+
+def dynamic_iterations(full: int, t: int) -> int:
+    """Steps for timestamp t: the full count first, half for the warm-started later ones."""
+    return full if t == 0 else max(1, full // 2)
+
+
+def fit_dynamic(
+    inputs: LiftInputs,
+    static: Gaussians,
+    initial: Gaussians,
+    view_depth: torch.Tensor,
+    median_depth: float,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    on_step: StepHook | None,
+) -> DynamicSets:
+    state = checkpoints.load("dynamic") or {"done": [], "seconds": 0.0}
+    done = [Gaussians.from_numpy(d, inputs.device) for d in state["done"]]
+    total = len(inputs.frames)
+    cameras = inputs.cameras
+    seeing = [i for i, c in enumerate(cameras) if float(inputs.moving_in_view(c).max()) > 0]
+    cams = [cameras[i] for i in seeing]
+    if len(initial) == 0 or not cams:
+        return DynamicSets([initial.detach() for _ in range(total)], 0.0, None)
+    full = inputs.knobs.gaussian_iterations
+    budget = inputs.knobs.max_gaussians - len(static)
+    features = make_feature_model(inputs.cfg.features, inputs.device)
+    start = time.perf_counter()
+
+    def seconds() -> float:
+        return float(state["seconds"]) + time.perf_counter() - start
+
+    def saved() -> dict[str, Any]:
+        return {"done": [g.to_numpy() for g in done], "seconds": seconds(), "t": len(done)}
+
+    h, w = cameras[0].height, cameras[0].width
+    for t in range(len(done), total):
+        views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
+        if t > 0:
+            with torch.no_grad():
+                scene = Gaussians.cat([static, done[-1]])
+                views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
+        iterations = dynamic_iterations(full, t)
+        trainer = make_trainer(
+            initial if t == 0 else done[-1],
+            views,
+            trainer_knobs(inputs.knobs, iterations, budget, median_depth),
+            inputs.render,
+            context=static,
+            features=features,
+            seed=inputs.cfg.seed + 1 + t,
+        )
+        if "trainer" in state and state.get("t") == t:
+            trainer.load_state_dict(state["trainer"])
+        label = f"dynamic t={t}"
+        done.append(run_trainer(trainer, checkpoints, "dynamic", label, bars, on_step, saved))
+        checkpoints.save("dynamic", saved())
+    steps = sum(dynamic_iterations(full, t) for t in range(total))
+    return DynamicSets(done, seconds(), seconds() / steps)
+
+
+# --- the phase -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Lifted:
+    """What the stages made, for ``lift.export`` to write."""
+
+    inputs: LiftInputs
+    alignment: Alignment
+    initial: InitialSets
+    static: StaticSet
+    dynamic: DynamicSets
+    timings: dict[str, float]  # seconds: animate, depth, align, static, dynamic
+
+
+def lift(
+    cfg: SceneConfig,
+    frames_dir: Path,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    render_backend: str,
+    on_step: StepHook | None,
+    animate_seconds: float,
+) -> Lifted:
+    """Every stage in order on the animation in ``frames_dir``."""
+    inputs = prepare(cfg, frames_dir, render_backend)
+    view_depth = estimate_depth(inputs, checkpoints, bars)
+    alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)
+    initial = initial_sets(inputs, alignment.depths[0])
+    median = alignment.median_depth
+    static = fit_static(
+        inputs, initial.static, view_depth.depth[0], median, checkpoints, bars, on_step
+    )
+    dynamic = fit_dynamic(
+        inputs, static.gaussians, initial.dynamic, view_depth.depth, median, checkpoints, bars,
+        on_step,
+    )  # fmt: skip
+    timings = {
+        "animate": animate_seconds,
+        "depth": view_depth.seconds,
+        "align": alignment.seconds,
+        "static": static.seconds,
+        "dynamic": dynamic.seconds,
+    }
+    return Lifted(inputs, alignment, initial, static, dynamic, timings)
