@@ -57,13 +57,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 from pano4d.camera import Camera
 from pano4d.config import PRESETS
 from pano4d.gaussians import Gaussians
-from pano4d.lift.gaussians import init_gaussians, init_sphere
+from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews
 from pano4d.lift.resident import ResidentTrainer
 from pano4d.render import RenderOutput, _core, adapter_info, render
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
-from pano4d.synth import Landscape, render_panorama
+from pano4d.synth.landscape import Landscape
+from pano4d.synth.views import render_panorama
 
 OUT = Path(__file__).resolve().parent / "out" / "train_step.json"
 VIEWS, FOV_DEG = 20, 80.0  # the lifting phase's layout (scene.yaml lift: defaults)

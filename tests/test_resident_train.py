@@ -16,7 +16,7 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.gaussians import init_gaussians, init_sphere
+from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import (
     ADAM_EPS,
     LEARNING_RATES,
@@ -462,3 +462,53 @@ def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
     assert 0 < uploaded <= 128 * steps
     assert 0 < read_back <= 2 * 7 * 4  # two read-backs of the 7 loss parts
     assert math.isfinite(trainer.last_loss)
+
+
+# --- the pipeline's default --------------------------------------------------------------------
+def test_pano4d_train_runs_the_resident_loop_by_default_and_resumes_only_its_own(
+    tmp_path: Any,
+) -> None:
+    """run_train on wgpu trains with the resident loop (its checkpoints say so); after a kill
+    it resumes to the same result as an uninterrupted run; the torch trainer refuses its
+    checkpoint with what to do; the resident loop refuses the torch rasteriser."""
+    import shutil
+
+    from pano4d import ply4d, synth
+    from pano4d.config import load_config
+    from pano4d.lift.checkpoints import TrainError
+    from pano4d.lift.pipeline import trainer_for
+    from pano4d.train import run_train
+
+    root = tmp_path / "scene"
+    synth.write_scene(root, synth.make_scene(0, 128, 64, 3, views=4, view_size=24))
+    tiny = {"view_size": 16, "init_stride": 4, "align_iterations": 20,
+            "gaussian_iterations": 12, "max_gaussians": 5000}  # fmt: skip
+
+    def config(name: str) -> Any:
+        out = tmp_path / name
+        shutil.copytree(root / "gt" / "frames", out / "animate" / "frames")
+        cfg = load_config(root / "scene.yaml")
+        depth = cfg.depth.model_copy(update={"backend": "file", "path": root / "depth.exr"})
+        return cfg.model_copy(update={"overrides": tiny, "output": out, "depth": depth})
+
+    run_train(config("a"), progress=False, checkpoint_every=4)
+    cfg = config("b")
+
+    def interrupt(stage: str, step: int) -> None:
+        if (stage, step) == ("static", 6):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_train(cfg, progress=False, checkpoint_every=4, on_step=interrupt)
+    state = torch.load(cfg.output / "checkpoints" / "static.pt", weights_only=False)
+    assert state["trainer_kind"] == "resident" and state["trainer"]["step"] == 4
+    with pytest.raises(TrainError, match=r"static\.pt: written by the resident trainer.*--trainer"):
+        run_train(cfg, progress=False, checkpoint_every=4, trainer="torch")
+    run_train(cfg, progress=False, checkpoint_every=4)
+    a, b = ply4d.read(tmp_path / "a" / "scene.ply4d"), ply4d.read(tmp_path / "b" / "scene.ply4d")
+    for t in range(a.num_times):
+        for name, tensor in a.at(t).tensors().items():
+            assert torch.allclose(tensor, b.at(t).tensors()[name], atol=1e-5), (t, name)
+    assert trainer_for("torch", None) == "torch" and trainer_for("wgpu", None) == "resident"
+    with pytest.raises(ValueError, match="renders with wgpu"):
+        trainer_for("torch", "resident")

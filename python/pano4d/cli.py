@@ -212,14 +212,31 @@ def render_command(
 def train(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
     backend: Annotated[str, typer.Option(help="Rasteriser: wgpu | torch.")] = "wgpu",
+    trainer: Annotated[
+        str | None,
+        typer.Option(
+            help="resident: the Gaussians, losses and Adam stay on the GPU (default with "
+            "wgpu); torch: the torch reference, losses and Adam on the host (the only choice "
+            "with --backend torch)."
+        ),
+    ] = None,
 ) -> None:
     """Both phases end to end: animate, align depth, fit Gaussians, write OUTPUT/scene.ply4d.
 
     Checkpoints after every stage; run the same command again to resume after a kill."""
+    from pano4d.lift.checkpoints import TrainError
+    from pano4d.lift.pipeline import trainer_for
     from pano4d.train import run_train
 
     cfg = load_scene_config(scene)
-    metrics = run_train(cfg, render_backend=backend)
+    try:
+        trainer = trainer_for(backend, trainer)
+    except ValueError as e:
+        fail(f"--trainer: {e}")
+    try:
+        metrics = run_train(cfg, render_backend=backend, trainer=trainer)
+    except TrainError as e:
+        fail(str(e))
     console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
     console.print_json(data=metrics)
 
