@@ -327,42 +327,49 @@ struct Adjoint {
     ext: vec3<f32>,
 }
 
-// Σ tap(j − o + r) · coeffs(o) over the outputs o in [lo, hi] of column x: the outputs
-// whose window read (unreflected) row j.
-fn coeff_column(j: i32, lo: i32, hi: i32, x: u32) -> Adjoint {
-    var a = Adjoint(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+// The three coefficient vectors of item q: the SSIM coefficients for the column adjoint,
+// their column adjoints for the row adjoint.
+fn coefficients(q: u32, columns: bool) -> Adjoint {
+    let b = q * COEFFS;
+    if columns {
+        return Adjoint(coeffs[b].xyz, coeffs[b + 1u].xyz, coeffs[b + 2u].xyz);
+    }
+    return Adjoint(adjoint[b].xyz, adjoint[b + 1u].xyz, adjoint[b + 2u].xyz);
+}
+
+// Adjoint of a reflect-padded window pass along an axis of n items (`stride` apart from
+// `first`), at index i: Σ tap(j − o + r) · coefficients(o) over the outputs o whose window
+// read index j, where j is i itself and, near a border, the mirror images that reflect onto
+// i: −i (read when 1 ≤ i ≤ r) and 2(n − 1) − i (read when n − 1 − r ≤ i ≤ n − 2).
+fn window_adjoint(i: i32, n: i32, first: u32, stride: u32, columns: bool) -> Adjoint {
     let r = i32(tp.radius);
-    for (var o = lo; o <= hi; o++) {
-        let k = tap(j - o + r);
-        let q = (u32(o) * tp.width + x) * COEFFS;
-        a.mu += k * coeffs[q].xyz;
-        a.exx += k * coeffs[q + 1u].xyz;
-        a.ext += k * coeffs[q + 2u].xyz;
+    var a = Adjoint(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    for (var image = 0; image < 3; image++) {
+        var j = i;
+        if image == 1 {
+            if i < 1 || i > r {
+                continue;
+            }
+            j = -i;
+        }
+        if image == 2 {
+            if i > n - 2 || i < n - 1 - r {
+                continue;
+            }
+            j = 2 * (n - 1) - i;
+        }
+        for (var o = max(j - r, 0); o <= min(j + r, n - 1); o++) {
+            let k = tap(j - o + r);
+            let c = coefficients(first + u32(o) * stride, columns);
+            a.mu += k * c.mu;
+            a.exx += k * c.exx;
+            a.ext += k * c.ext;
+        }
     }
     return a;
 }
 
-// The same along row `row` over the column adjoints.
-fn adjoint_row(j: i32, lo: i32, hi: i32, row: u32) -> Adjoint {
-    var a = Adjoint(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
-    let r = i32(tp.radius);
-    for (var o = lo; o <= hi; o++) {
-        let k = tap(j - o + r);
-        let q = (row + u32(o)) * COEFFS;
-        a.mu += k * adjoint[q].xyz;
-        a.exx += k * adjoint[q + 1u].xyz;
-        a.ext += k * adjoint[q + 2u].xyz;
-    }
-    return a;
-}
-
-fn add(a: Adjoint, b: Adjoint) -> Adjoint {
-    return Adjoint(a.mu + b.mu, a.exx + b.exx, a.ext + b.ext);
-}
-
-// Column adjoint: index i of an axis of n collects the outputs within r of it, and near a
-// border those that read it through the mirror (index −i for i ≥ 1, 2(n − 1) − i for
-// i ≤ n − 2; each within the padding only when i ≤ r, resp. i ≥ n − 1 − r).
+// Column adjoint of the SSIM coefficients.
 @compute @workgroup_size(256)
 fn adjoint_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                    @builtin(local_invocation_index) lid: u32) {
@@ -370,18 +377,7 @@ fn adjoint_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroup
     if p >= pixel_count() {
         return;
     }
-    let x = p % tp.width;
-    let i = i32(p / tp.width);
-    let n = i32(tp.height);
-    let r = i32(tp.radius);
-    var a = coeff_column(i, max(i - r, 0), min(i + r, n - 1), x);
-    if i >= 1 && i <= r {
-        a = add(a, coeff_column(-i, 0, r - i, x));
-    }
-    let m = 2 * (n - 1) - i;
-    if i <= n - 2 && i >= n - 1 - r {
-        a = add(a, coeff_column(m, m - r, n - 1, x));
-    }
+    let a = window_adjoint(i32(p / tp.width), i32(tp.height), p % tp.width, tp.width, true);
     let base = p * COEFFS;
     adjoint[base] = vec4<f32>(a.mu, 0.0);
     adjoint[base + 1u] = vec4<f32>(a.exx, 0.0);
@@ -423,18 +419,8 @@ fn pixel_grads(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     if p >= pixel_count() {
         return;
     }
-    let i = i32(p % tp.width);
     let row = p - p % tp.width;
-    let n = i32(tp.width);
-    let r = i32(tp.radius);
-    var a = adjoint_row(i, max(i - r, 0), min(i + r, n - 1), row);
-    if i >= 1 && i <= r {
-        a = add(a, adjoint_row(-i, 0, r - i, row));
-    }
-    let m = 2 * (n - 1) - i;
-    if i <= n - 2 && i >= n - 1 - r {
-        a = add(a, adjoint_row(m, m - r, n - 1, row));
-    }
+    let a = window_adjoint(i32(p % tp.width), i32(tp.width), row, 1u, false);
     let x = rendered_rgb(p);
     let t = target_at(p);
     let w = weights[p];

@@ -25,6 +25,7 @@ Adam moments, the view generator, the step), so a resumed run continues bit-for-
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -202,8 +203,10 @@ def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     return Camera(camera.K, w2c, camera.width, camera.height)
 
 
-class GaussianTrainer:
-    """Optimises one set of Gaussians (optionally against a frozen context)."""
+class Trainer(ABC):
+    """What both trainers share (``GaussianTrainer`` here, ``ResidentTrainer`` in
+    lift.resident): their inputs, the step count, the seeded generator that draws each
+    step's view, and the loop; a lifting stage can use either."""
 
     def __init__(
         self,
@@ -228,6 +231,47 @@ class GaussianTrainer:
         self.step = 0
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
+        self._start(gaussians)
+
+    @abstractmethod
+    def _start(self, gaussians: Gaussians) -> None:
+        """Sets up the optimisation of ``gaussians`` (called once by __init__)."""
+
+    def next_view(self) -> int:
+        """The view of the next step, drawn from the seeded generator."""
+        return int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+
+    @abstractmethod
+    def train_step(self) -> float:
+        """One step; returns the loss (the resident trainer's last one read back)."""
+
+    @abstractmethod
+    def result(self) -> Gaussians:
+        """The trained Gaussians."""
+
+    @abstractmethod
+    def densify_and_prune(self) -> None: ...
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def run(self, on_step: Callable[[Trainer], None] | None = None) -> Gaussians:
+        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
+        while self.step < self.knobs.iterations:
+            self.train_step()
+            if on_step is not None:
+                on_step(self)
+        return self.result()
+
+
+class GaussianTrainer(Trainer):
+    """Optimises one set of Gaussians (optionally against a frozen context) in torch."""
+
+    def _start(self, gaussians: Gaussians) -> None:
         self._set_parameters(gaussians)
 
     # --- parameters ------------------------------------------------------------------------
@@ -302,8 +346,7 @@ class GaussianTrainer:
         return loss
 
     def train_step(self) -> float:
-        index = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
-        loss = self.loss_at(index)
+        loss = self.loss_at(self.next_view())
         self.optimiser.zero_grad(set_to_none=True)
         loss.backward()
         grad = self.params["offsets"].grad
@@ -317,17 +360,6 @@ class GaussianTrainer:
         if densify_due(self.knobs, self.step):
             self.densify_and_prune()
         return self.last_loss
-
-    def run(
-        self,
-        on_step: Callable[[GaussianTrainer], None] | None = None,
-    ) -> Gaussians:
-        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
-        while self.step < self.knobs.iterations:
-            self.train_step()
-            if on_step is not None:
-                on_step(self)
-        return self.result()
 
     # --- densify and prune ------------------------------------------------------------------
     def densify_and_prune(self) -> None:

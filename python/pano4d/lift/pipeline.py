@@ -44,7 +44,14 @@ from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
-from pano4d.lift.optimize import FeatureModel, GaussianTrainer, Knobs, RenderFn, TrainViews
+from pano4d.lift.optimize import (
+    FeatureModel,
+    GaussianTrainer,
+    Knobs,
+    RenderFn,
+    Trainer,
+    TrainViews,
+)
 from pano4d.lift.resident import ResidentTrainer
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
@@ -56,8 +63,7 @@ from pano4d.sphere import view_layout
 StepHook = Callable[[str, int], None]
 # The optimisers: "resident" keeps the Gaussians, Adam and the losses on the GPU (wgpu);
 # "torch" is GaussianTrainer, the reference (losses and Adam in torch, any rasteriser).
-TRAINERS = {"resident": ResidentTrainer, "torch": GaussianTrainer}
-Trainer = ResidentTrainer | GaussianTrainer
+TRAINERS: dict[str, type[Trainer]] = {"resident": ResidentTrainer, "torch": GaussianTrainer}
 
 
 def trainer_for(render_backend: str, trainer: str | None) -> str:

@@ -24,8 +24,6 @@ steps old.
 from __future__ import annotations
 
 import inspect
-import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -40,10 +38,7 @@ from pano4d.lift.optimize import (
     LEARNING_RATES,
     RGB_L1,
     RGB_SSIM,
-    FeatureModel,
-    Knobs,
-    RenderFn,
-    TrainViews,
+    Trainer,
     densify_due,
     moved_camera,
     sem_alpha,
@@ -91,34 +86,12 @@ def _camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-class ResidentTrainer:
+class ResidentTrainer(Trainer):
     """Optimises one set of Gaussians (optionally against a frozen context) on the GPU."""
 
     sem_every = 1  # steps between semantic-loss evaluations (each reads two renders back)
 
-    def __init__(
-        self,
-        gaussians: Gaussians,
-        views: TrainViews,
-        knobs: Knobs,
-        render_fn: RenderFn,
-        context: Gaussians | None = None,
-        features: FeatureModel | None = None,
-        seed: int = 0,
-        background: torch.Tensor | None = None,
-    ) -> None:
-        if knobs.iterations < 0:
-            raise ValueError(f"iterations must be ≥ 0, got {knobs.iterations}")
-        if len(views.cameras) == 0:
-            raise ValueError("no views to train on")
-        self.views, self.knobs = views, knobs
-        self.render_fn, self.features = render_fn, features
-        self.context = context.detach() if context is not None else None
-        self.background = background
-        self.device = gaussians.device
-        self.step = 0
-        self.generator = torch.Generator().manual_seed(seed)
-        self.last_loss = math.nan
+    def _start(self, gaussians: Gaussians) -> None:
         g = gaussians.detach()
         self._sh_coeffs = g.sh.shape[1]
         ctx = Gaussians.empty(g.sh_degree) if self.context is None else self.context
@@ -128,7 +101,7 @@ class ResidentTrainer:
                 f"({g.sh_degree}); give the trained set at least the context's degree"
             )
         ctx = ctx.with_sh_degree(g.sh_degree)
-        bg = torch.zeros(3) if background is None else torch.as_tensor(background).reshape(-1)
+        bg = torch.zeros(3) if self.background is None else torch.as_tensor(self.background)
         unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
         self._session = _core().TrainSession(
             pack(ctx),
@@ -142,10 +115,10 @@ class ResidentTrainer:
             (
                 LAMBDA_RGB * RGB_L1,
                 LAMBDA_RGB * RGB_SSIM,
-                knobs.lambda_temporal,
-                knobs.lambda_geo,
+                self.knobs.lambda_temporal,
+                self.knobs.lambda_geo,
             ),
-            [float(v) for v in bg],
+            [float(v) for v in bg.reshape(-1)],
         )
 
     def _view_targets(self) -> list[tuple[Any, ...]]:
@@ -170,7 +143,7 @@ class ResidentTrainer:
 
     # --- one step --------------------------------------------------------------------------
     def train_step(self) -> float:
-        index = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+        index = self.next_view()
         k = self.knobs
         alpha = sem_alpha(self.step, k.iterations)
         sem = (
@@ -212,17 +185,6 @@ class ResidentTrainer:
         s.backward_at(_flat(v_pixels))
         s.apply_adam()
         return float(loss.detach())
-
-    def run(
-        self,
-        on_step: Callable[[ResidentTrainer], None] | None = None,
-    ) -> Gaussians:
-        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
-        while self.step < self.knobs.iterations:
-            self.train_step()
-            if on_step is not None:
-                on_step(self)
-        return self.result()
 
     # --- state on the host ---------------------------------------------------------------------
     def _state(self) -> dict[str, Any]:

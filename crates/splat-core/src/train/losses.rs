@@ -167,9 +167,6 @@ impl LossBuffers {
     }
 }
 
-/// One pass: pipeline, (binding, buffer) pairs, workgroups.
-type Stage<'a> = (&'a wgpu::ComputePipeline, Vec<(u32, &'a wgpu::Buffer)>, u32);
-
 pub(super) struct LossKernels {
     ssim_rows: wgpu::ComputePipeline,
     ssim_columns: wgpu::ComputePipeline,
@@ -221,79 +218,38 @@ impl LossKernels {
     ) {
         let groups = div_ceil(b.pixels, 256);
         let summing = div_ceil(b.pixels, 256 * PIXELS_PER_INVOCATION);
-        let p = view.params;
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        let stages: [Stage<'_>; 8] = [
-            (
-                &self.ssim_rows,
-                vec![(0, p), (1, pixels), (2, view.rgb), (6, &b.moments)],
-                groups,
-            ),
-            (
-                &self.ssim_columns,
-                vec![
-                    (0, p),
-                    (1, pixels),
-                    (2, view.rgb),
-                    (3, view.weight),
-                    (4, view.depth),
-                    (5, view.previous),
-                    (6, &b.moments),
-                    (7, &b.coeffs),
-                    (9, &b.partials),
-                ],
-                summing,
-            ),
-            (
-                &self.totals_a,
-                vec![(0, p), (9, &b.partials), (10, &b.totals)],
-                1,
-            ),
-            (
-                &self.pearson_terms,
-                vec![
-                    (0, p),
-                    (1, pixels),
-                    (3, view.weight),
-                    (4, view.depth),
-                    (9, &b.partials),
-                    (10, &b.totals),
-                ],
-                summing,
-            ),
-            (
-                &self.totals_b,
-                vec![(0, p), (9, &b.partials), (10, &b.totals)],
-                1,
-            ),
-            (
-                &self.adjoint_columns,
-                vec![(0, p), (7, &b.coeffs), (8, &b.moments)],
-                groups,
-            ),
-            (
-                &self.pixel_grads,
-                vec![
-                    (0, p),
-                    (1, pixels),
-                    (2, view.rgb),
-                    (3, view.weight),
-                    (4, view.depth),
-                    (5, view.previous),
-                    (8, &b.moments),
-                    (10, &b.totals),
-                    (11, &b.v_pixels),
-                ],
-                groups,
-            ),
-            (
-                &self.loss_value,
-                vec![(0, p), (10, &b.totals), (12, &b.loss)],
-                1,
-            ),
+        // The shader's bindings by number (8, the column adjoints, reuses the moments'
+        // buffer) and, per pass, the ones its entry point uses.
+        let buffers: [&wgpu::Buffer; 13] = [
+            view.params,
+            pixels,
+            view.rgb,
+            view.weight,
+            view.depth,
+            view.previous,
+            &b.moments,
+            &b.coeffs,
+            &b.moments,
+            &b.partials,
+            &b.totals,
+            &b.v_pixels,
+            &b.loss,
         ];
-        for (pipeline, bindings, groups) in &stages {
-            run_linear(&mut pass, device, pipeline, bindings, *groups);
+        let passes: [(&wgpu::ComputePipeline, &[u32], u32); 8] = [
+            (&self.ssim_rows, &[0, 1, 2, 6], groups),
+            (&self.ssim_columns, &[0, 1, 2, 3, 4, 5, 6, 7, 9], summing),
+            (&self.totals_a, &[0, 9, 10], 1),
+            (&self.pearson_terms, &[0, 1, 3, 4, 9, 10], summing),
+            (&self.totals_b, &[0, 9, 10], 1),
+            (&self.adjoint_columns, &[0, 7, 8], groups),
+            (&self.pixel_grads, &[0, 1, 2, 3, 4, 5, 7, 8, 10, 11], groups),
+            (&self.loss_value, &[0, 10, 12], 1),
+        ];
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        for (pipeline, used, groups) in passes {
+            let bindings: Vec<(u32, &wgpu::Buffer)> =
+                used.iter().map(|&i| (i, buffers[i as usize])).collect();
+            run_linear(&mut pass, device, pipeline, &bindings, groups);
         }
     }
 }

@@ -501,6 +501,34 @@ impl TrainSession {
         pop_error(scope)
     }
 
+    fn view(&self, view: usize) -> Result<&View, RasterError> {
+        let count = self.views.len();
+        self.views
+            .get(view)
+            .ok_or_else(|| invalid(format!("view {view} out of range ({count} views)")))
+    }
+
+    /// Submits the loss passes of view `view` on the forward output `pixels`.
+    fn encode_losses(&self, view: usize, pixels: &wgpu::Buffer) -> Result<(), RasterError> {
+        let v = self.view(view)?;
+        let view_buffers = ViewBuffers {
+            params: &v.params,
+            rgb: &v.rgb,
+            weight: &v.weight,
+            depth: v.depth.as_ref().unwrap_or(&self.placeholder),
+            previous: v.previous.as_ref().unwrap_or(&self.placeholder),
+        };
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        self.losses.encode(
+            &self.device,
+            &mut encoder,
+            &self.loss_buffers,
+            &view_buffers,
+            pixels,
+        );
+        self.submit(encoder)
+    }
+
     /// One training step on view `view`: forward, losses, backward, Adam.
     pub fn step(&mut self, renderer: &mut Renderer, view: usize) -> Result<(), RasterError> {
         self.forward_backward(renderer, view)?;
@@ -516,28 +544,9 @@ impl TrainSession {
         renderer: &mut Renderer,
         view: usize,
     ) -> Result<(), RasterError> {
-        let count = self.views.len();
-        let v = self
-            .views
-            .get(view)
-            .ok_or_else(|| invalid(format!("view {view} out of range ({count} views)")))?;
-        let frame = renderer.encode_frame(self.scene_buffer(), &v.camera, &self.config.settings)?;
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        let view_buffers = ViewBuffers {
-            params: &v.params,
-            rgb: &v.rgb,
-            weight: &v.weight,
-            depth: v.depth.as_ref().unwrap_or(&self.placeholder),
-            previous: v.previous.as_ref().unwrap_or(&self.placeholder),
-        };
-        self.losses.encode(
-            &self.device,
-            &mut encoder,
-            &self.loss_buffers,
-            &view_buffers,
-            renderer.frame_pixels(),
-        );
-        self.submit(encoder)?;
+        let camera = self.view(view)?.camera;
+        let frame = renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        self.encode_losses(view, renderer.frame_pixels())?;
         renderer.encode_backward(&frame, &self.loss_buffers.v_pixels, &self.grads)?;
         self.extra_frame = None;
         self.has_extra = false;
@@ -554,29 +563,10 @@ impl TrainSession {
     ) -> Result<(Vec<f32>, [f32; LOSS_PARTS]), RasterError> {
         let len = PIXEL_CHANNELS * (self.width * self.height) as usize;
         check_len("pixels", pixels.len(), len)?;
-        let count = self.views.len();
-        if view >= count {
-            return Err(invalid(format!("view {view} out of range ({count} views)")));
-        }
+        self.view(view)?;
         let input = storage(&self.device, "given pixels", len as u64);
         self.upload(&input, 0, bytemuck::cast_slice(pixels));
-        let v = &self.views[view];
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        let view_buffers = ViewBuffers {
-            params: &v.params,
-            rgb: &v.rgb,
-            weight: &v.weight,
-            depth: v.depth.as_ref().unwrap_or(&self.placeholder),
-            previous: v.previous.as_ref().unwrap_or(&self.placeholder),
-        };
-        self.losses.encode(
-            &self.device,
-            &mut encoder,
-            &self.loss_buffers,
-            &view_buffers,
-            &input,
-        );
-        self.submit(encoder)?;
+        self.encode_losses(view, &input)?;
         let v_pixels = self.loss_buffers.v_pixels.clone();
         let gradient = self.read(&[(&v_pixels, 0, 4 * len as u64)])?;
         Ok((gradient, self.loss()?))
