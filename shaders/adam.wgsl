@@ -44,7 +44,8 @@ struct AdamParams {
 }
 
 @group(0) @binding(0) var<uniform> ap: AdamParams;
-@group(0) @binding(1) var<storage, read_write> scene: array<f32>;
+// The scene, under the name gaussian.wgsl's helpers read.
+@group(0) @binding(1) var<storage, read_write> gaussians: array<f32>;
 @group(0) @binding(2) var<storage, read> grads: array<f32>;
 @group(0) @binding(3) var<storage, read> grads_extra: array<f32>;
 @group(0) @binding(4) var<storage, read_write> exp_avg: array<f32>;
@@ -52,19 +53,9 @@ struct AdamParams {
 @group(0) @binding(6) var<storage, read> unit: array<f32>;
 // Accumulated ‖g_o‖ (first n_train) and count of non-zero ones (next n_train).
 @group(0) @binding(7) var<storage, read_write> stats: array<f32>;
-
-// Start of each SoA section for sections of length n (gaussian_offsets in gaussian.wgsl).
-struct Sections {
-    means: u32,
-    log_scales: u32,
-    quats: u32,
-    opacity: u32,
-    sh: u32,
-}
-
-fn sections(n: u32) -> Sections {
-    return Sections(0u, 3u * n, 6u * n, 10u * n, 11u * n);
-}
+// gaussian.wgsl's helpers also read the render parameters; Adam uses none of them, so this
+// is declared for them and never bound.
+@group(0) @binding(8) var<uniform> params: RenderParams;
 
 fn gradient(i: u32) -> f32 {
     if ap.has_extra != 0u {
@@ -86,21 +77,21 @@ fn adam_step(mi: u32, g: f32, group: u32) -> f32 {
 // Parameters `count` wide starting at section offsets (scene, gradient, moment) of one group.
 fn update_plain(scene_at: u32, grad_at: u32, moment_at: u32, count: u32, group: u32) {
     for (var c = 0u; c < count; c++) {
-        scene[scene_at + c] += adam_step(moment_at + c, gradient(grad_at + c), group);
+        gaussians[scene_at + c] += adam_step(moment_at + c, gradient(grad_at + c), group);
     }
 }
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let i = (wid.y * nwg.x + wid.x) * 256u + lid;
+    let i = linear_workgroup(wid, nwg) * 256u + lid;
     if i >= ap.n_train {
         return;
     }
     let gi = ap.n_context + i;
-    let s = sections(ap.stride);
-    let g = sections(ap.grad_len);
-    let m = sections(ap.n_train);
+    let s = gaussian_offsets(ap.stride);
+    let g = gaussian_offsets(ap.grad_len);
+    let m = gaussian_offsets(ap.n_train);
     let k = ap.sh_coeffs;
 
     // Means, through the offsets (see the header).
@@ -109,7 +100,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     for (var c = 0u; c < 3u; c++) {
         let g_offset = gradient(g.means + 3u * gi + c) * u;
         norm2 += g_offset * g_offset;
-        scene[s.means + 3u * gi + c] += adam_step(m.means + 3u * i + c, g_offset, 0u) * u;
+        gaussians[s.means + 3u * gi + c] += adam_step(m.means + 3u * i + c, g_offset, 0u) * u;
     }
     let norm = sqrt(norm2);
     stats[i] += norm;

@@ -1,7 +1,7 @@
 //! Adam on the device (`shaders/adam.wgsl`): torch.optim.Adam's update, element by
 //! element, with one learning rate per parameter group.
 
-use crate::raster::kernels::{compile, div_ceil, run_linear, COMMON_WGSL};
+use crate::raster::kernels::{compile, div_ceil, run_linear, COMMON_WGSL, GAUSSIAN_WGSL};
 
 const ADAM_WGSL: &str = include_str!("../../../../shaders/adam.wgsl");
 
@@ -97,7 +97,13 @@ pub(super) struct AdamKernel {
 impl AdamKernel {
     pub(super) fn new(device: &wgpu::Device) -> Self {
         Self {
-            pipeline: compile(device, "adam", &[COMMON_WGSL, ADAM_WGSL], &["main"]).remove(0),
+            pipeline: compile(
+                device,
+                "adam",
+                &[COMMON_WGSL, GAUSSIAN_WGSL, ADAM_WGSL],
+                &["main"],
+            )
+            .remove(0),
         }
     }
 
