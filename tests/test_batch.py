@@ -22,7 +22,7 @@ from typer.testing import CliRunner
 
 from pano4d.batch import BatchError, collect_scenes
 from pano4d.cli import app
-from pano4d.imageio import write_image
+from pano4d.images import write_image
 from pano4d.synth import run_synth
 
 runner = CliRunner()

@@ -123,7 +123,7 @@ def finished_metrics(cfg: SceneConfig) -> dict[str, Any] | None:
 def resume_point(cfg: SceneConfig) -> str | None:
     """Where ``run_train`` will pick this scene up, read from its checkpoints; None when
     nothing of it is there yet (a fresh start)."""
-    from pano4d.train import Checkpoints
+    from pano4d.lift.checkpoints import Checkpoints
 
     out = Path(cfg.output)
     ckpt = Checkpoints(out / "checkpoints", config_hash(cfg))
@@ -482,34 +482,33 @@ def _drive(
     console: Console,
 ) -> None:
     """Submit the tasks, draw the progress, collect the results as they come."""
-    from pano4d.progress import progress_bar
+    from pano4d.progress import Bars, Task
 
     pending: dict[Any, int] = {}
     submitted: dict[int, float] = {}
     for i in to_run:
         submitted[i] = time.time()
         pending[task.remote(rows[i].scene, backend, board, i)] = i
-    done_before = len(rows) - len(to_run)
-    bar = progress_bar("stage", console=console)
-    # The batch ETA is the throughput of the whole run so far, not rich's 30 s window: scenes
-    # take minutes. A tiny first advance anchors the rate at the start.
-    bar.speed_estimate_period = math.inf
-    lines: dict[int, Any] = {}
+    done = len(rows) - len(to_run)
+    lines: dict[int, Task] = {}
     try:
-        with bar:
-            batch = bar.add_task("batch", total=len(rows), completed=done_before, stage="")
-            bar.advance(batch, 1e-9)
+        with Bars("stage", console=console, whole_run_eta=True) as bars:
+            batch = bars.task("batch", total=len(rows), completed=done)
+            # A tiny first advance anchors the whole-run rate at the start.
+            batch.update(done + 1e-9)
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=POLL_S)
                 for ref in ready:
                     i = pending.pop(ref)
                     _collect(ray, ref, rows[i], submitted[i])
                     if i in lines:
-                        bar.remove_task(lines.pop(i))
-                    bar.console.print(_outcome_line(rows[i]), highlight=False)
+                        lines.pop(i).remove()
+                    bars.print(_outcome_line(rows[i]))
+                    done += 1
                     failed = sum(rows[j].status == "failed" for j in to_run)
-                    bar.update(batch, advance=1, stage=f"{failed} failed" if failed else "")
-                _show_stages(bar, lines, ray.get(board.read.remote()), rows, set(pending.values()))
+                    batch.update(done, stage=f"{failed} failed" if failed else "")
+                stages = ray.get(board.read.remote())
+                _show_stages(bars, lines, stages, rows, set(pending.values()))
     except KeyboardInterrupt:
         for ref, i in pending.items():
             ray.cancel(ref, force=True)
@@ -528,7 +527,7 @@ def _collect(ray: Any, ref: Any, row: SceneOutcome, submitted: float) -> None:
 
 
 def _show_stages(
-    bar: Any,
+    bars: Any,
     lines: dict[int, Any],
     stages: dict[int, tuple[str, int]],
     rows: list[SceneOutcome],
@@ -539,8 +538,8 @@ def _show_stages(
         if i not in running:
             continue
         if i not in lines:
-            lines[i] = bar.add_task(f"  {escape(rows[i].name)}", total=None, stage=stage)
-        bar.update(lines[i], completed=step, stage=escape(stage))
+            lines[i] = bars.task(f"  {escape(rows[i].name)}", total=None)
+        lines[i].update(step, stage=escape(stage))
 
 
 def _outcome_line(row: SceneOutcome) -> str:

@@ -10,6 +10,8 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from pano4d.region_cli import app as regions_app
+
 app = typer.Typer(
     name="pano4d",
     help=(
@@ -22,6 +24,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 console = Console(stderr=True)
+app.add_typer(regions_app)
 
 
 def fail(message: str) -> None:

@@ -138,8 +138,9 @@ class Motion(_Section):
 
 
 class Region(_Section):
-    """One moving region: exactly one of mask / box / click."""
+    """One moving region: exactly one of mask / box / click, an optional name and motion."""
 
+    name: str | None = Field(None, min_length=1)  # a label; the region editor shows it
     mask: LoosePath | None = None
     box: list[float] | None = None
     click: list[float] | None = None
@@ -306,8 +307,9 @@ class SceneConfig(_Section):
 
     @field_validator("regions")
     @classmethod
-    def _some_regions(cls, regions: list[Region]) -> list[Region]:
-        if not regions:
+    def _some_regions(cls, regions: list[Region], info: ValidationInfo) -> list[Region]:
+        # The region editor opens a scene before it has regions; nothing else may.
+        if not regions and (info.context or {}).get("require_regions", True):
             raise ValueError("a scene needs at least one moving region (a mask, box or click)")
         return regions
 
@@ -371,8 +373,10 @@ _UniqueKeyLoader.add_constructor(
 )
 
 
-def load_config(path: PathLike) -> SceneConfig:
-    """Read and validate a scene.yaml; raises ConfigError naming the file and every problem."""
+def load_config(path: PathLike, require_regions: bool = True) -> SceneConfig:
+    """Read and validate a scene.yaml; raises ConfigError naming the file and every problem.
+
+    ``require_regions=False`` accepts an empty ``regions: []`` (for the region editor)."""
     path = Path(path).resolve()
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
@@ -395,15 +399,19 @@ def load_config(path: PathLike) -> SceneConfig:
             f"{path}: expected a mapping of keys (panorama, regions, ...), "
             f"got {type(data).__name__}"
         )
-    return validate_config(data, base_dir=path.parent, source=path)
+    return validate_config(data, base_dir=path.parent, source=path, require_regions=require_regions)
 
 
 def validate_config(
-    data: dict[str, Any], base_dir: PathLike, source: PathLike | None = None
+    data: dict[str, Any],
+    base_dir: PathLike,
+    source: PathLike | None = None,
+    require_regions: bool = True,
 ) -> SceneConfig:
     """Validate an already-parsed config; relative paths resolve against ``base_dir``."""
+    context = {"base_dir": Path(base_dir), "require_regions": require_regions}
     try:
-        return SceneConfig.model_validate(data, context={"base_dir": Path(base_dir)})
+        return SceneConfig.model_validate(data, context=context)
     except ValidationError as error:
         name = str(source) if source is not None else "config"
         lines = [f"{name}: {line}" for line in _describe(error)]

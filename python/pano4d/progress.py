@@ -28,7 +28,7 @@ class Task:
     def __init__(self, bar: Progress | None = None, task: TaskID | None = None) -> None:
         self._bar, self._task = bar, task
 
-    def update(self, completed: int, **fields: float | str) -> None:
+    def update(self, completed: float, **fields: float | str) -> None:
         """Set the done count and the extra fields; a float shows four decimals, or '-'
         while it is not finite (nothing measured yet)."""
         if self._bar is None or self._task is None:
@@ -45,6 +45,12 @@ class Task:
         else:
             self._bar.update(self._task, advance=1, description=description)
 
+    def remove(self) -> None:
+        """Take this bar off the display (its work is over)."""
+        if self._bar is not None and self._task is not None:
+            self._bar.remove_task(self._task)
+            self._task = None
+
 
 class Bars:
     """Progress bars with a column ``name {value}`` for each of ``fields``; use as a context
@@ -56,6 +62,7 @@ class Bars:
         enabled: bool = True,
         console: Console | None = None,
         transient: bool = False,
+        whole_run_eta: bool = False,
     ) -> None:
         self._fields = fields
         self._bar: Progress | None = None
@@ -70,6 +77,9 @@ class Bars:
                 TimeRemainingColumn(),
                 console=console,
                 transient=transient,
+                # rich estimates speed over the last 30 s; work whose items take minutes
+                # (a batch of scenes) needs the throughput of the whole run.
+                speed_estimate_period=math.inf if whole_run_eta else 30.0,
             )
 
     def __enter__(self) -> Bars:
@@ -86,12 +96,19 @@ class Bars:
         if self._bar is not None:
             self._bar.stop()
 
-    def task(self, description: str, total: int, completed: int = 0) -> Task:
-        """A new bar, ``completed`` of ``total`` done (a resumed stage starts part-way)."""
+    def print(self, text: str) -> None:
+        """A line of rich markup above the bars."""
+        if self._bar is not None:
+            self._bar.console.print(text, highlight=False)
+
+    def task(self, description: str, total: int | None, completed: int = 0) -> Task:
+        """A new bar, ``completed`` of ``total`` done (a resumed stage starts part-way);
+        ``total=None`` for work whose size is not known (the bar pulses)."""
         if self._bar is None:
             return Task()
         fields = dict.fromkeys(self._fields, "-")
-        task = self._bar.add_task(description, total=max(total, 1), completed=completed, **fields)
+        size = None if total is None else max(total, 1)
+        task = self._bar.add_task(description, total=size, completed=completed, **fields)
         return Task(self._bar, task)
 
 

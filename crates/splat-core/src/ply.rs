@@ -156,6 +156,20 @@ impl PlyHeader {
             ranges.push(start..end);
             start = end;
         }
+        // A binary body is exactly its records. Bytes left over mean the header's counts
+        // are not the file's (a damaged digit would otherwise silently drop records).
+        if start != file_len {
+            return invalid(format!(
+                "invalid PLY: {} bytes follow the last element's records; the header's \
+                 element counts ({}) do not describe this file",
+                file_len - start,
+                self.elements
+                    .iter()
+                    .map(|e| format!("{} {}", e.name, e.count))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
         Ok(ranges)
     }
 }
@@ -275,7 +289,8 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<GaussianSet> {
     })
 }
 
-/// Decodes the bytes of a `.ply` file (standard 3DGS or SuperSplat compressed).
+/// Decodes the bytes of a `.ply` file (standard 3DGS or SuperSplat compressed). The body
+/// must be exactly the records the header counts: short or long, the file is refused.
 pub fn parse_ply(bytes: &[u8]) -> Result<GaussianSet> {
     let header = parse_header(bytes)?;
     let ranges = header.element_ranges(bytes.len())?;
@@ -825,6 +840,8 @@ mod tests {
         .contains("missing required property 'x'"));
         let full = custom_ply("binary_little_endian", &MINIMAL, &[record]);
         assert!(error_of(&full[..full.len() - 1]).contains("truncated"));
+        let long = [&full[..], &[0]].concat();
+        assert!(error_of(&long).contains("1 bytes follow the last element's records"));
         assert!(error_of(b"PK\x03\x04").contains("not a PLY file"));
         let double = String::from_utf8(custom_ply("binary_little_endian", &MINIMAL, &[]))
             .unwrap()
@@ -965,24 +982,106 @@ mod tests {
         assert_eq!(set.sh[6], 4.0);
     }
 
-    proptest! {
-        // 2 × 1000 cases in 1–2 s (mostly spent generating header text).
-        #![proptest_config(ProptestConfig::with_cases(1000))]
+    /// The small standard and compressed samples the damage tests start from.
+    fn samples() -> [Vec<u8>; 2] {
+        [
+            encode_ply(&random_set(3, 1, 9)).unwrap(),
+            compressed_sample(),
+        ]
+    }
 
-        /// Damaged standard or compressed files give `Ok` or an error, never a panic.
+    /// A damaged file parses to an error or to exactly as many Gaussians as the original:
+    /// the count is never silently wrong. Returns the set when it parsed.
+    fn parse_checked(bytes: &[u8], original: &GaussianSet) -> Option<GaussianSet> {
+        let set = parse_ply(bytes).ok()?;
+        assert_eq!(set.len(), original.len(), "parsed with a wrong count");
+        Some(set)
+    }
+
+    #[test]
+    fn every_truncation_fails() {
+        for bytes in samples() {
+            for cut in 0..bytes.len() {
+                assert!(
+                    parse_ply(&bytes[..cut]).is_err(),
+                    "parsed at {cut} of {}",
+                    bytes.len()
+                );
+            }
+        }
+    }
+
+    /// Bits of everything but the higher-order SH: a header edit can rename an element or
+    /// property to one a reader ignores (the SuperSplat `sh` element, say), which drops the
+    /// higher orders from a file that is still valid.
+    fn base_bits(set: &GaussianSet) -> Vec<u32> {
+        let k = sh_coeffs(set.sh_degree);
+        let dc = (0..set.len()).flat_map(|i| set.sh[i * k * 3..i * k * 3 + 3].to_vec());
+        let mut v = bits(&GaussianSet {
+            sh_degree: 0,
+            sh: dc.collect(),
+            ..set.clone()
+        });
+        v.push(set.len() as u32);
+        v
+    }
+
+    #[test]
+    fn every_single_byte_change_in_the_header_fails_or_changes_nothing() {
+        // Exhaustive over header positions, with the values a damaged header plausibly
+        // holds there (digits, separators, NUL, 0xff, the neighbouring letters and case).
+        // What parses must be the original Gaussians, bit for bit: a count edited from 3
+        // to 2, say, must not leave one record unread.
+        for bytes in samples() {
+            let original = parse_ply(&bytes).unwrap();
+            let body = parse_header(&bytes).unwrap().body_offset;
+            for at in 0..body {
+                let b = bytes[at];
+                let values = (b'0'..=b'9').chain([
+                    b' ',
+                    b'\n',
+                    b'\r',
+                    b'\t',
+                    0,
+                    0xff,
+                    b ^ 0x20,
+                    b.wrapping_add(1),
+                    b.wrapping_sub(1),
+                ]);
+                for value in values.filter(|&v| v != b) {
+                    let mut damaged = bytes.clone();
+                    damaged[at] = value;
+                    if let Some(set) = parse_checked(&damaged, &original) {
+                        let what = format!("byte {at} = {value:#04x}");
+                        assert_eq!(base_bits(&set), base_bits(&original), "{what}");
+                    }
+                }
+            }
+        }
+    }
+
+    proptest! {
+        // 2 × 1000 cases in 1–2 s (mostly spent generating header text); PROPTEST_CASES=N
+        // runs N each.
+        #![proptest_config(ProptestConfig::with_cases(fuzz_cases()))]
+
+        /// Damaged standard or compressed files give an error or the original count, never
+        /// a panic.
         #[test]
         fn fuzz_parse_never_panics(
             compressed in any::<bool>(),
             edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..6),
             cut in any::<prop::sample::Index>(),
         ) {
-            let mut bytes = if compressed { compressed_sample() } else { encode_ply(&random_set(3, 1, 9)).unwrap() };
+            let [standard, packed] = samples();
+            let mut bytes = if compressed { packed } else { standard };
+            let original = parse_ply(&bytes).unwrap();
             for (at, value) in edits {
                 let i = at.index(bytes.len());
                 bytes[i] = value;
             }
             let keep = cut.index(bytes.len() + 1);
-            let _ = parse_ply(&bytes[..keep]);
+            parse_checked(&bytes[..keep], &original);
         }
 
         #[test]
@@ -998,6 +1097,14 @@ mod tests {
             let text = format!("ply\nformat binary_little_endian 1.0\n{}\nend_header\n", lines.join("\n"));
             let _ = parse_ply(&[text.as_bytes(), &body].concat());
         }
+    }
+
+    /// Cases per fuzz property: `PROPTEST_CASES` when set (a longer run), else 1000.
+    fn fuzz_cases() -> u32 {
+        std::env::var("PROPTEST_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(1000)
     }
 
     proptest! {

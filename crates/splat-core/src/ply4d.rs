@@ -28,6 +28,16 @@ fn invalid<T>(msg: impl Into<String>) -> Result<T> {
     Err(FileError::Invalid(msg.into()))
 }
 
+/// `e` with the file's path in front of its message (format errors only; I/O errors name it).
+fn name_file(e: FileError, path: Option<&Path>) -> FileError {
+    match (e, path) {
+        (FileError::Invalid(msg), Some(path)) => {
+            FileError::Invalid(format!("{}: {msg}", path.display()))
+        }
+        (e, _) => e,
+    }
+}
+
 /// Axis-aligned bounds of all Gaussian means (finite ones) over every set in the file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Bounds {
@@ -352,6 +362,8 @@ impl Storage {
 /// only when read.
 pub struct Ply4dReader {
     storage: Storage,
+    /// The file's path, named in every error a read reports (`None` for bytes in memory).
+    path: Option<PathBuf>,
     header: Ply4dHeader,
     /// `sections[0]` is the static set, `sections[1 + t]` timestamp t.
     sections: Vec<Section>,
@@ -376,19 +388,28 @@ impl Ply4dReader {
             let map = unsafe { Mmap::map(&file) }.map_err(|e| FileError::io(context("map"), e))?;
             Storage::Mapped(map)
         };
-        Self::from_storage(storage).map_err(|e| match e {
-            FileError::Invalid(msg) => FileError::Invalid(format!("{}: {msg}", path.display())),
-            other => other,
-        })
+        Self::from_storage(storage, Some(path.to_path_buf()))
     }
 
     /// Validates a whole file held in memory.
     pub fn from_bytes(bytes: Vec<u8>) -> Result<Self> {
-        Self::from_storage(Storage::Owned(bytes))
+        Self::from_storage(Storage::Owned(bytes), None)
     }
 
-    fn from_storage(storage: Storage) -> Result<Self> {
-        let bytes = storage.bytes();
+    fn from_storage(storage: Storage, path: Option<PathBuf>) -> Result<Self> {
+        match Self::validate(storage.bytes()) {
+            Ok((header, sections)) => Ok(Ply4dReader {
+                storage,
+                path,
+                header,
+                sections,
+            }),
+            Err(e) => Err(name_file(e, path.as_deref())),
+        }
+    }
+
+    /// The header and section table of a whole file, checked (see docs/ply4d.md).
+    fn validate(bytes: &[u8]) -> Result<(Ply4dHeader, Vec<Section>)> {
         let file_len = bytes.len() as u64;
         if bytes.len() < PREAMBLE_LEN {
             return invalid(format!(
@@ -477,11 +498,12 @@ impl Ply4dReader {
                 ));
             }
         }
-        Ok(Ply4dReader {
-            storage,
-            header,
-            sections,
-        })
+        Ok((header, sections))
+    }
+
+    /// An error of this file, naming it.
+    fn invalid<T>(&self, msg: String) -> Result<T> {
+        Err(name_file(FileError::Invalid(msg), self.path.as_deref()))
     }
 
     pub fn header(&self) -> &Ply4dHeader {
@@ -499,7 +521,7 @@ impl Ply4dReader {
     /// Raw, checksum-verified `.ply` bytes of section `index` (0 static, 1 + t dynamic).
     pub fn section_bytes(&self, index: usize) -> Result<&[u8]> {
         let Some(s) = self.sections.get(index) else {
-            return invalid(format!(
+            return self.invalid(format!(
                 "section {index} out of range: the file has {}",
                 self.sections.len()
             ));
@@ -510,17 +532,19 @@ impl Ply4dReader {
                 SectionKind::Static => "the static set".to_string(),
                 SectionKind::Dynamic => format!("timestamp {}", s.time_index),
             };
-            return invalid(format!("corrupt .ply4d: checksum mismatch in {what}"));
+            return self.invalid(format!("corrupt .ply4d: checksum mismatch in {what}"));
         }
         Ok(bytes)
     }
 
     fn decode_section(&self, index: usize) -> Result<GaussianSet> {
-        let set = ply::parse_ply(self.section_bytes(index)?)
-            .map_err(|e| FileError::Invalid(format!("corrupt .ply4d: section {index}: {e}")))?;
+        let set = match ply::parse_ply(self.section_bytes(index)?) {
+            Ok(set) => set,
+            Err(e) => return self.invalid(format!("corrupt .ply4d: section {index}: {e}")),
+        };
         let s = &self.sections[index];
         if set.len() as u64 != s.count || set.sh_degree != self.header.sh_degree {
-            return invalid(format!(
+            return self.invalid(format!(
                 "corrupt .ply4d: section {index} holds {} Gaussians of SH degree {}, the table \
                  says {} and the header degree {}",
                 set.len(),
@@ -534,7 +558,7 @@ impl Ply4dReader {
 
     fn check_time(&self, t: usize) -> Result<()> {
         if t >= self.num_times() {
-            return invalid(format!(
+            return self.invalid(format!(
                 "timestamp index {t} out of range: the file has {}",
                 self.num_times()
             ));
@@ -840,7 +864,16 @@ mod tests {
         let mut body = good.clone();
         let last = body.len() - 2;
         body[last] ^= 1;
-        assert!(error_of(body).contains("checksum mismatch in timestamp 1"));
+        assert!(error_of(body.clone()).contains("checksum mismatch in timestamp 1"));
+        // Read from a file, the errors of a section read name the file too.
+        let path = std::env::temp_dir().join(format!("ply4d-errors-{}.ply4d", std::process::id()));
+        std::fs::write(&path, &body).unwrap();
+        let err = read(&path).unwrap_err().to_string();
+        std::fs::remove_file(&path).unwrap();
+        assert!(
+            err.starts_with(&format!("{}: corrupt .ply4d", path.display())),
+            "{err}"
+        );
     }
 
     /// Rewrites the JSON header and/or table of a valid file and fixes the header CRC, so
@@ -896,21 +929,95 @@ mod tests {
         assert!(error_of(many_sections).contains("truncated"));
     }
 
-    /// Opening, verifying and reading every section of a damaged file must give `Ok` or a
-    /// clear error, never a panic.
-    fn read_everything(bytes: Vec<u8>) {
-        if let Ok(reader) = Ply4dReader::from_bytes(bytes) {
-            let _ = reader.verify();
-            let _ = reader.read_static();
-            for t in 0..reader.num_times() + 1 {
-                let _ = reader.read_at(t);
+    /// Opens a damaged file and reads every section, and checks that each read either
+    /// errors or yields exactly the data its table entry describes: the PLY at
+    /// `[offset, offset + length)`, whose CRC is the entry's, holding the entry's count at the
+    /// header's SH degree; `read_at(t)` is static ++ dynamic `t` exactly when both read.
+    /// Returns `None` if the file does not open, else each section's set (`None`: an error).
+    fn read_checked(bytes: &[u8]) -> Option<Vec<Option<GaussianSet>>> {
+        let reader = Ply4dReader::from_bytes(bytes.to_vec()).ok()?;
+        let _ = reader.verify();
+        let sets: Vec<Option<GaussianSet>> = reader
+            .sections()
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let read = match i {
+                    0 => reader.read_static(),
+                    _ => reader.read_dynamic(i - 1),
+                };
+                let set = read.ok()?;
+                let blob = &bytes[s.offset as usize..(s.offset + s.length) as usize];
+                assert_eq!(
+                    crc32fast::hash(blob),
+                    s.crc32,
+                    "section {i}: read past a bad CRC"
+                );
+                assert_eq!(
+                    set.len() as u64,
+                    s.count,
+                    "section {i}: not the table's count"
+                );
+                assert_eq!(
+                    set.sh_degree,
+                    reader.header().sh_degree,
+                    "section {i}: degree"
+                );
+                assert_eq!(
+                    set,
+                    ply::parse_ply(blob).unwrap(),
+                    "section {i}: not its bytes"
+                );
+                Some(set)
+            })
+            .collect();
+        for t in 0..reader.num_times() {
+            match (reader.read_at(t), &sets[0], &sets[1 + t]) {
+                (Ok(at), Some(static_set), Some(dynamic)) => {
+                    let mut expected = static_set.clone();
+                    expected.extend_from(dynamic);
+                    assert_eq!(at, expected, "read_at({t})");
+                }
+                (Ok(_), _, _) => panic!("read_at({t}) succeeded where a section failed"),
+                (Err(e), Some(_), Some(_)) => panic!("read_at({t}) failed alone: {e}"),
+                (Err(_), _, _) => {}
+            }
+        }
+        Some(sets)
+    }
+
+    /// The sets of `encoded_small()`, in section order.
+    fn small_sets() -> Vec<GaussianSet> {
+        let scene = small_scene();
+        std::iter::once(scene.static_set)
+            .chain(scene.dynamic)
+            .collect()
+    }
+
+    /// Sections that read are the original sets: damage that passed every check touched
+    /// nothing a reader uses (padding, the preamble's reserved bytes).
+    fn assert_unchanged_where_read(sets: &[Option<GaussianSet>]) {
+        for (i, (set, original)) in sets.iter().zip(small_sets()).enumerate() {
+            if let Some(set) = set {
+                assert_eq!(
+                    *set, original,
+                    "section {i} read but differs from what was written"
+                );
             }
         }
     }
 
+    /// Byte range of the section table in `encoded_small()`.
+    fn table_range(bytes: &[u8]) -> std::ops::Range<usize> {
+        let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+        let count = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
+        PREAMBLE_LEN + json_len..PREAMBLE_LEN + json_len + count * TABLE_ENTRY_LEN
+    }
+
     proptest! {
-        // 4 × 1000 cases in well under a second, so they run in CI on every test run.
-        #![proptest_config(ProptestConfig::with_cases(1000))]
+        // 5 × 1000 cases in about a second (release), so they run in CI on every test run;
+        // PROPTEST_CASES=N runs N each.
+        #![proptest_config(ProptestConfig::with_cases(fuzz_cases()))]
 
         #[test]
         fn fuzz_mutations(edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8)) {
@@ -919,14 +1026,17 @@ mod tests {
                 let i = at.index(bytes.len());
                 bytes[i] = value;
             }
-            read_everything(bytes);
+            if let Some(sets) = read_checked(&bytes) {
+                assert_unchanged_where_read(&sets);
+            }
         }
 
         #[test]
         fn fuzz_truncation(cut in any::<prop::sample::Index>()) {
+            // The last section ends the file, so every truncated file fails to open.
             let bytes = encoded_small();
             let cut = cut.index(bytes.len());
-            read_everything(bytes[..cut].to_vec());
+            prop_assert!(read_checked(&bytes[..cut]).is_none(), "opened at {cut} of {} bytes", bytes.len());
         }
 
         #[test]
@@ -935,27 +1045,72 @@ mod tests {
                 bytes[..8].copy_from_slice(&MAGIC);
                 bytes[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
             }
-            read_everything(bytes);
+            read_checked(&bytes);
         }
 
         #[test]
         fn fuzz_table_fields_behind_valid_crc(
-            entry in 0usize..3, field in 0usize..5, value in any::<u64>(),
+            entry in 0usize..3, field in 0usize..6, value in any::<u64>(),
         ) {
             // Mutations above rarely get past the header CRC; here the CRC is recomputed.
+            // A changed field must make its section fail, and nothing else may change.
             let good = encoded_small();
-            let bytes = with_header(&good, None, |t| {
-                let at = entry * TABLE_ENTRY_LEN + [0, 4, 8, 16, 24][field];
-                let width = if field < 2 { 4 } else { 8 };
-                t[at..at + width].copy_from_slice(&value.to_le_bytes()[..width]);
-            });
-            read_everything(bytes);
+            let (at, width) = (entry * TABLE_ENTRY_LEN + [0, 4, 8, 16, 24, 32][field], [4, 4, 8, 8, 8, 4][field]);
+            let old = good[table_range(&good)][at..at + width].to_vec();
+            let new = value.to_le_bytes()[..width].to_vec();
+            let bytes = with_header(&good, None, |t| t[at..at + width].copy_from_slice(&new));
+            if let Some(sets) = read_checked(&bytes) {
+                if old != new {
+                    prop_assert!(sets[entry].is_none(), "entry {entry} field {field} changed, yet it read");
+                }
+                assert_unchanged_where_read(&sets);
+            }
         }
+
+        #[test]
+        fn fuzz_header_and_table_bytes_behind_valid_crc(
+            edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..6),
+            in_json in any::<bool>(),
+        ) {
+            // Byte edits in the JSON header or the table, CRC recomputed: a section whose
+            // entry changed outside its reserved bytes must fail; what reads is the original.
+            let good = encoded_small();
+            let table = table_range(&good);
+            let mut json = good[PREAMBLE_LEN..table.start].to_vec();
+            let mut entries = good[table.clone()].to_vec();
+            let target = if in_json { &mut json } else { &mut entries };
+            for (at, value) in edits {
+                let i = at.index(target.len());
+                target[i] = value;
+            }
+            let bytes = with_header(&good, Some(&json), |t| t.copy_from_slice(&entries));
+            if let Some(sets) = read_checked(&bytes) {
+                for (i, set) in sets.iter().enumerate() {
+                    let fields = i * TABLE_ENTRY_LEN..i * TABLE_ENTRY_LEN + 36;
+                    if entries[fields.clone()] != good[table.clone()][fields] {
+                        prop_assert!(set.is_none(), "entry {i} changed, yet it read");
+                    }
+                }
+                assert_unchanged_where_read(&sets);
+            }
+        }
+    }
+
+    /// Cases per fuzz property: `PROPTEST_CASES` when set (a longer run), else 1000.
+    fn fuzz_cases() -> u32 {
+        std::env::var("PROPTEST_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(1000)
+    }
+
+    fn small_scene() -> Scene4d {
+        scene(1, &[2, 3])
     }
 
     fn encoded_small() -> Vec<u8> {
         use std::sync::OnceLock;
         static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
-        BYTES.get_or_init(|| encoded(&scene(1, &[2, 3]))).clone()
+        BYTES.get_or_init(|| encoded(&small_scene())).clone()
     }
 }

@@ -9,10 +9,12 @@
 //! - [`render`]: the frame render path shared by the window, headless use and the bench.
 //! - [`headless`]: one view to an image, without a window.
 //! - [`app`]: the egui application.
+//! - [`edit`]: the region editor (`--edit scene.yaml`).
 //! - [`synthetic`]: a small generated 4D scene for tests and the benchmark.
 
 pub mod app;
 pub mod camera;
+pub mod edit;
 pub mod headless;
 pub mod render;
 pub mod scene;

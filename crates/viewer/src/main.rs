@@ -1,5 +1,6 @@
 //! `pano4d-view SCENE`: opens the viewer window; `pano4d-view SCENE --headless --out x.png`
-//! renders one view without a window.
+//! renders one view without a window; `pano4d-view --edit scene.yaml` opens the region
+//! editor.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -7,13 +8,18 @@ use std::process::ExitCode;
 use eframe::egui_wgpu;
 use pano4d_viewer::app::ViewerApp;
 use pano4d_viewer::camera::CameraPose;
+use pano4d_viewer::edit::{app::EditorApp, bridge::Python};
 use pano4d_viewer::headless::{render_file, TimeSelection, ViewRequest};
 use pano4d_viewer::render::save_png;
 
 const USAGE: &str = "\
 usage: pano4d-view [SCENE] [--headless --out PNG] [options]
+       pano4d-view --edit scene.yaml
 
 SCENE is a .ply4d scene, a 3DGS .ply file, or a folder of per-frame .ply files.
+--edit (or a .yaml SCENE) opens the region editor: draw what moves on the panorama,
+preview it, save it into scene.yaml (through the pano4d Python package: the python
+beside this program, or $PANO4D_PYTHON).
 
 options (headless):
   --headless             render one view to --out instead of opening a window
@@ -29,6 +35,7 @@ options (headless):
 
 struct Args {
     scene: Option<PathBuf>,
+    edit: bool,
     headless: bool,
     out: Option<PathBuf>,
     request: ViewRequest,
@@ -69,6 +76,7 @@ fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
 fn parse_args(mut args: impl Iterator<Item = String>) -> Result<Args, String> {
     let mut parsed = Args {
         scene: None,
+        edit: false,
         headless: false,
         out: None,
         request: ViewRequest::default(),
@@ -77,6 +85,7 @@ fn parse_args(mut args: impl Iterator<Item = String>) -> Result<Args, String> {
         let mut value = |name: &str| args.next().ok_or_else(|| format!("{name} needs a value"));
         match arg.as_str() {
             "-h" | "--help" => return Err(String::new()),
+            "--edit" => parsed.edit = true,
             "--headless" => parsed.headless = true,
             "--out" => parsed.out = Some(PathBuf::from(value("--out")?)),
             "--camera" => parsed.request.pose = Some(CameraPose::parse(&value("--camera")?)?),
@@ -119,6 +128,15 @@ fn parse_args(mut args: impl Iterator<Item = String>) -> Result<Args, String> {
             extra => return Err(format!("unexpected argument {extra:?}")),
         }
     }
+    let yaml = parsed
+        .scene
+        .as_ref()
+        .and_then(|s| s.extension())
+        .is_some_and(|e| e == "yaml" || e == "yml");
+    parsed.edit |= yaml && !parsed.headless;
+    if parsed.edit && (parsed.headless || parsed.scene.is_none()) {
+        return Err("--edit needs a scene.yaml and no --headless".into());
+    }
     Ok(parsed)
 }
 
@@ -149,6 +167,21 @@ fn run_window(scene: Option<PathBuf>) -> Result<(), String> {
     .map_err(|e| format!("cannot open the viewer window: {e}"))
 }
 
+fn run_editor(scene: PathBuf) -> Result<(), String> {
+    let options = eframe::NativeOptions {
+        viewport: eframe::egui::ViewportBuilder::default()
+            .with_title(format!("pano4d-view: regions of {}", scene.display()))
+            .with_inner_size([1280.0, 800.0]),
+        ..Default::default()
+    };
+    eframe::run_native(
+        "pano4d-view-edit",
+        options,
+        Box::new(move |_| Ok(Box::new(EditorApp::new(&scene, Python::locate())))),
+    )
+    .map_err(|e| format!("cannot open the editor window: {e}"))
+}
+
 fn main() -> ExitCode {
     let args = match parse_args(std::env::args().skip(1)) {
         Ok(args) => args,
@@ -161,7 +194,9 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let result = if args.headless {
+    let result = if args.edit {
+        run_editor(args.scene.expect("checked by parse_args"))
+    } else if args.headless {
         run_headless(&args)
     } else {
         run_window(args.scene)

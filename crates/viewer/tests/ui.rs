@@ -15,27 +15,13 @@ use pano4d_viewer::camera::{CameraPose, ViewCamera};
 use pano4d_viewer::synthetic::{self, ball_centre, BALL_RADIUS};
 use splat_core::ply4d;
 
+mod common;
+use common::TempDir;
+
 const TIMES: usize = 4;
 /// A pixel with every channel at or below this is background showing through (the shell's
 /// and the ball's colours are all brighter in some channel).
 const DARK: u8 = 10;
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("pano4d-view-ui-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn write_scene(dir: &Path) -> PathBuf {
     let path = dir.join("scene.ply4d");

@@ -16,8 +16,15 @@ A per-pixel shift with nothing to hold it can explain any depth, so for the firs
 iterations α and β stay at the identity (scale 1, shift 0) and only D_k moves: it settles on
 the consensus of the views. The second half frees α and β together with their regularisers.
 β is stored in units of the view's near depth (its 10th percentile), so one learning rate
-fits every scene scale, and it moves ten times slower than α: a per-pixel field that moves as
-fast as the one scale would absorb what the scale should explain.
+and one λ_shift fit every scene scale.
+
+What holds β is the TV term, so λ_shift must make it matter: a view whose Θ is off by a
+scale s and a shift b is explained either by (s, constant β = b), which costs the scale
+prior λ_scale·|s − 1| and no TV, or by (1, β bent to follow the scale error), which costs
+TV. With TV a mean over pixels, λ_shift = 0.01 made bending ~100× cheaper: β absorbed the
+scale errors, planted shifts never came back and a step in β was not smoothed
+(tests/test_align.py). At λ_shift = 10 a constant shift wins, and TV removes structure in
+β narrower than a few pixels while keeping wide steps (TV-L1 is edge-preserving).
 
 Frame k > 0 starts from frame k − 1's solution, and D_k changes only at points in the
 (dilated) moving region: the static geometry stays bit-identical across frames, which is what
@@ -37,9 +44,8 @@ from pano4d.camera import Camera
 from pano4d.resample import sphere_sampler, sphere_to_equirect
 from pano4d.sphere import Icosphere, icosphere, icosphere_frequency_for_spacing
 
-LAMBDA_DEPTH, LAMBDA_SCALE, LAMBDA_SHIFT = 1.0, 0.1, 0.01
+LAMBDA_DEPTH, LAMBDA_SCALE, LAMBDA_SHIFT = 1.0, 0.1, 10.0
 IDENTITY_ALPHA = math.log(math.e - 1.0)  # softplus(IDENTITY_ALPHA) = 1
-SHIFT_LR_FACTOR = 0.1
 LOG_DEPTH_RANGE = (math.log(1e-2), math.log(1e5))  # clamp on the parameter, far beyond use
 
 
@@ -185,12 +191,7 @@ class DepthAligner:
         p_log_depth = log_depth.detach().clone().requires_grad_(True)
         p_alpha = alpha.detach().clone().requires_grad_(True)
         p_beta = beta.detach().clone().requires_grad_(True)
-        optimiser = torch.optim.Adam(
-            [
-                {"params": [p_log_depth, p_alpha], "lr": self.lr},
-                {"params": [p_beta], "lr": self.lr * SHIFT_LR_FACTOR},
-            ]
-        )
+        optimiser = torch.optim.Adam([p_log_depth, p_alpha, p_beta], lr=self.lr)
         loss_value = math.nan
         for step in range(iterations):
             calibrate = step >= free_from
