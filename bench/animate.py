@@ -15,7 +15,13 @@ CPU, the tiny random model of the tests (default):
     .venv/bin/python bench/animate.py
 GPU, SVD's own architecture with random weights (the real model's FLOPs and memory) at
 the paper's setting, 20 views, L = 14, 25 steps, 4096×2048, float16:
-    .venv/bin/python bench/animate.py --full
+    .venv/bin/python bench/animate.py --full [--weights DIR]
+
+The random model is written in diffusers format (float16 files with --full: ~4.5 GB) and
+loaded by path through ``svd.load_svd``, as real weights are; ``--weights DIR`` keeps it in
+DIR for the next run (or loads real SVD weights from there). Per scene the JSON records the
+batching: views per step batch, the UNet's row bound from its attention calls
+(unet_attention.py), the rows each UNet call took and the calls made.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import ctypes
 import os
 import platform
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -38,12 +45,13 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
 from pano4d.animate.decode import tiled_equirect
+from pano4d.animate.random_svd import save_random_svd
 from pano4d.animate.svd import (
     DECODE_OVERLAP,
     DECODE_TILE,
     SVDDenoiser,
+    load_svd,
     prepare_panorama,
-    random_svd_pipeline,
     resolve_dtype,
 )
 from pano4d.config import AnimateConfig
@@ -108,10 +116,19 @@ def _mib(n: int) -> float:
     return round(n / 2**20, 1)
 
 
-def load_panorama(width: int) -> torch.Tensor:
-    if not PANORAMA.is_file():
-        raise SystemExit(f"benchmark panorama not found: {PANORAMA} (see shared/data/SOURCES.md)")
-    image = torch.from_numpy(read_panorama(PANORAMA)).permute(2, 0, 1)[None]
+def load_panorama(source: str, width: int) -> torch.Tensor:
+    """The panorama at ``width``: the image at ``source``, or for ``"synthetic"`` smooth
+    colour waves (with random weights the UNet's cost does not depend on the content; for a
+    machine without ../shared/data)."""
+    if source == "synthetic":
+        dirs = equirect_directions(width, width // 2, torch.float64)
+        x, y, z = dirs.unbind(-1)
+        waves = torch.stack([torch.sin(5 * x + z), torch.cos(4 * y), torch.sin(3 * z + x)])
+        return (0.5 + 0.4 * waves).float().contiguous()
+    path = Path(source)
+    if not path.is_file():
+        raise SystemExit(f"benchmark panorama not found: {path} (see shared/data/SOURCES.md)")
+    image = torch.from_numpy(read_panorama(path)).permute(2, 0, 1)[None]
     if image.shape[-1] != width:
         image = F.interpolate(image, size=(width // 2, width), mode="area")
     return image[0].clamp(0, 1).contiguous()
@@ -131,13 +148,14 @@ def cap_mask(width: int, views: int, worth: float) -> torch.Tensor:
 
 
 def build_model(
-    full: bool, device: torch.device, dtype: torch.dtype, settings: AnimateConfig
+    full: bool, device: torch.device, dtype: torch.dtype, settings: AnimateConfig, folder: Path
 ) -> SVDDenoiser:
-    pipeline = random_svd_pipeline("full" if full else "tiny")
-    networks = [
-        m.to(device, dtype).eval() for m in (pipeline.unet, pipeline.vae, pipeline.image_encoder)
-    ]
-    return SVDDenoiser(*networks, pipeline.scheduler, settings, device, dtype)
+    """The model in ``folder``, written there first (random weights) if it is not there."""
+    if not (folder / "model_index.json").is_file():
+        variant = "fp16" if dtype == torch.float16 else None
+        print(f"writing the random {'full' if full else 'tiny'} model to {folder}")
+        save_random_svd(folder, "full" if full else "tiny", variant=variant)
+    return load_svd(folder, settings, device, dtype)
 
 
 def bench_scene(
@@ -148,6 +166,7 @@ def bench_scene(
     setup = prepare_panorama(model, settings, panorama, moving, seed=0)
     prepare_s = time.perf_counter() - start
     memory = PeakMemory(model.device)
+    calls_before = len(model.unet_call_rows)
     try:
         setup.denoiser.sample(
             setup.condition,
@@ -165,17 +184,19 @@ def bench_scene(
         name: sum(r.seconds.get(name, 0.0) for r in reports) / steps
         for name in ("project", "unet", "fuse")
     }
-    unet_calls = sum(r.unet_calls for r in reports)
-    guidance = 2 if model.do_guidance else 1
+    unet_calls = model.unet_call_rows[calls_before:]
+    latent = setup.side // model.scale_factor
     return {
         "region_views_worth": worth,
         "moving_fraction": round(float(moving.float().mean()), 4),
         "active_views": len(setup.active),
         "view_size": setup.side,
         "sphere_points": setup.denoiser.footprints.n_points,
-        "views_per_unet_call": setup.denoiser.view_batch,
-        "unet_calls": unet_calls,
-        "unet_view_evaluations": len(setup.active) * steps * guidance,
+        "views_per_batch": setup.denoiser.view_batch,
+        "unet_rows_limit": model.unet_rows(settings.frames, latent, latent),
+        "unet_batch": max(unet_calls),
+        "unet_calls": len(unet_calls),
+        "unet_view_evaluations": len(setup.active) * steps * model.guidance_branches,
         "prepare_s": round(prepare_s, 3),
         "step_s": {k: round(v, 4) for k, v in seconds.items()},
         "project_fuse_over_unet": round(
@@ -230,6 +251,13 @@ def main() -> None:
         "--decode-widths", type=int, nargs="+", help="default 512 1024; 4096 --full"
     )
     parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    parser.add_argument(
+        "--weights", type=Path, help="diffusers folder to load (written first if missing)"
+    )
+    parser.add_argument("--json", type=Path, help="output (default bench/out/animate*.json)")
+    parser.add_argument(
+        "--panorama", default=str(PANORAMA), help="image path, or 'synthetic' (default the lake)"
+    )
     args = parser.parse_args()
     full = args.full
     width = args.width or (4096 if full else 512)
@@ -240,19 +268,22 @@ def main() -> None:
     dtype = resolve_dtype("auto", device)
     settings = AnimateConfig(frames=frames, steps=steps, views=args.views)
     torch.manual_seed(0)
-    model = build_model(full, device, dtype, settings)
-    panorama = load_panorama(width)
+    with tempfile.TemporaryDirectory(prefix="pano4d-svd-") as scratch:
+        folder = args.weights or Path(scratch) / "svd"
+        model = build_model(full, device, dtype, settings, folder)
+    panorama = load_panorama(args.panorama, width)
 
     scenes = [bench_scene(model, settings, panorama, worth) for worth in args.worth]
     print(f"{'full SVD' if full else 'tiny SVD'} on {device} ({dtype}), {width}x{width // 2}, "
           f"L={frames}, {steps} steps, {args.views}-view layout")  # fmt: skip
-    print(f"{'worth':>5} {'active':>6} {'batch':>5} {'UNet calls':>10} {'view evals':>10} "
-          f"{'project':>9} {'UNet':>9} {'fuse':>9} {'p+f/UNet':>8} "
+    print(f"{'worth':>5} {'active':>6} {'views':>5} {'rows':>4} {'UNet calls':>10} "
+          f"{'view evals':>10} {'project':>9} {'UNet':>9} {'fuse':>9} {'p+f/UNet':>8} "
           f"{'peak proj':>9} {'peak UNet':>9} {'peak fuse':>9}")  # fmt: skip
     for r in scenes:
         t, m = r["step_s"], r["step_peak_mib"]
-        print(f"{r['region_views_worth']:>5g} {r['active_views']:>6} {r['views_per_unet_call']:>5} "
-              f"{r['unet_calls']:>10} {r['unet_view_evaluations']:>10} {t['project']:>8.3f}s "
+        print(f"{r['region_views_worth']:>5g} {r['active_views']:>6} {r['views_per_batch']:>5} "
+              f"{r['unet_batch']:>4} {r['unet_calls']:>10} {r['unet_view_evaluations']:>10} "
+              f"{t['project']:>8.3f}s "
               f"{t['unet']:>8.3f}s {t['fuse']:>8.3f}s {r['project_fuse_over_unet']:>8.3f} "
               f"{m['project']:>7.0f}MB {m['unet']:>7.0f}MB {m['fuse']:>7.0f}MB")  # fmt: skip
     decodes = [bench_decode(model, frames, w) for w in decode_widths]
@@ -262,7 +293,7 @@ def main() -> None:
         print(f"{d['width']:>5}x{d['height']:<5} {tiles:>6} {d['seconds']:>7.2f}s "
               f"{d['peak_mib']:>7.0f}MB {d['output_mib']:>7.0f}MB")  # fmt: skip
 
-    out = (
+    out = args.json or (
         Path(__file__).resolve().parent / "out" / ("animate_full.json" if full else "animate.json")
     )
     write_json_atomic(
@@ -272,7 +303,7 @@ def main() -> None:
             "device": str(device),
             "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None,
             "dtype": str(dtype),
-            "panorama": f"{PANORAMA.name} at {width}x{width // 2}",
+            "panorama": f"{Path(args.panorama).name} at {width}x{width // 2}",
             "frames": frames,
             "steps": steps,
             "views": args.views,

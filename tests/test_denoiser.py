@@ -1,18 +1,17 @@
-"""The Panoramic Denoiser (pano4d.animate): noise on the sphere, project/fuse, the SVD
-backend on a tiny random model loaded by path, tiled decoding, and the composite."""
+"""The Panoramic Denoiser (pano4d.animate): noise on the sphere, project/fuse, the sampler
+against diffusers' scheduler, and tiled decoding (the svd backend: test_svd.py)."""
 
 from __future__ import annotations
 
 import itertools
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 import torch
 
 from pano4d.animate.decode import tiled_equirect
-from pano4d.animate.denoiser import PanoramicDenoiser, SphereLatent, euler_step, latent_cameras
+from pano4d.animate.denoiser import PanoramicDenoiser, SphereLatent, euler_step
 from pano4d.animate.noise import (
     Footprints,
     build_footprints,
@@ -20,8 +19,6 @@ from pano4d.animate.noise import (
     sphere_white_noise,
 )
 from pano4d.camera import Camera
-from pano4d.config import validate_config
-from pano4d.images import read_image
 from pano4d.resample import equirect_to_perspective, sphere_sampler
 from pano4d.sphere import (
     equirect_directions,
@@ -29,8 +26,6 @@ from pano4d.sphere import (
     icosphere_frequency_for_spacing,
     view_layout,
 )
-
-FRAMES, STEPS = 3, 2
 
 
 # --- noise ---------------------------------------------------------------------------------
@@ -114,7 +109,7 @@ def test_fuse_is_the_window_weighted_mean_and_exact_for_one_view() -> None:
 def test_euler_step_matches_diffusers_scheduler() -> None:
     from diffusers import EulerDiscreteScheduler
 
-    from pano4d.animate.svd import SVD_SCHEDULER
+    from pano4d.animate.random_svd import SVD_SCHEDULER
 
     scheduler = EulerDiscreteScheduler(**SVD_SCHEDULER)
     scheduler.set_timesteps(5)
@@ -417,166 +412,3 @@ def test_tiles_reproduce_a_local_operator_across_seam_and_poles(tile: int) -> No
         overlap=2,
     )
     torch.testing.assert_close(upsampled, torch.nn.functional.interpolate(grid, scale_factor=8))
-
-
-# --- the SVD backend on a tiny random model ------------------------------------------------
-@pytest.fixture(scope="module")
-def tiny_svd(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny plain-SVD pipeline with random weights, saved in diffusers format."""
-    from pano4d.animate.svd import save_random_svd
-
-    return save_random_svd(tmp_path_factory.mktemp("svd") / "tiny")
-
-
-@pytest.fixture(scope="module")
-def tiny_svd_mask(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The same with Animate-Anything's 9-channel UNet (mask, noisy latent, image latent)."""
-    from pano4d.animate.svd import save_random_svd
-
-    return save_random_svd(tmp_path_factory.mktemp("svd") / "tiny-mask", mask_channel=True)
-
-
-def _scene(tmp_path: Path, weights: Path) -> tuple:
-    from pano4d.images import write_image
-    from pano4d.regions import moving_mask
-
-    # A smooth panorama, written and read back through the config like a user's.
-    dirs = equirect_directions(128, 64, torch.float64)
-    x, y, z = dirs.unbind(-1)
-    panorama = (0.5 + 0.4 * torch.stack([torch.sin(3 * x + z), y, torch.cos(2 * z)])).float()
-    write_image(tmp_path / "panorama.png", panorama.permute(1, 2, 0).numpy(), bits=16)
-    settings = {"backend": "svd", "weights": str(weights), "frames": FRAMES, "steps": STEPS,
-                "views": 4, "fov_deg": 100.0, "border_px": 2}  # fmt: skip
-    region = {"box": [100, 4, 30, 44]}  # crosses the 0°/360° seam
-    cfg = validate_config(
-        {"panorama": "panorama.png", "regions": [region], "animate": settings}, tmp_path
-    )
-    moving = moving_mask(cfg, 128, 64)
-    assert moving[:, 0].any() and moving[:, -1].any()
-    return cfg, panorama, moving
-
-
-def test_missing_or_incomplete_weights_folder_names_the_files(
-    tmp_path: Path, tiny_svd: Path
-) -> None:
-    import shutil
-
-    from pano4d.animate.svd import WeightsError, check_weights_folder
-
-    pattern = r"not found: .*nowhere.*model_index\.json.*unet/config\.json"
-    with pytest.raises(WeightsError, match=pattern):
-        check_weights_folder(tmp_path / "nowhere")
-    broken = tmp_path / "broken"
-    shutil.copytree(tiny_svd, broken)
-    (broken / "scheduler" / "scheduler_config.json").unlink()
-    for weights in (broken / "unet").glob("*.safetensors"):
-        weights.unlink()
-    with pytest.raises(WeightsError) as error:
-        check_weights_folder(broken)
-    message = str(error.value)
-    assert str(broken) in message
-    assert "missing scheduler/scheduler_config.json, unet/*.safetensors (or *.bin) (" in message
-    check_weights_folder(tiny_svd)  # the complete folder passes
-
-
-def test_animate_svd_moves_only_the_region_and_keeps_the_rest_bit_identical(
-    tmp_path: Path, tiny_svd_mask: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """End to end through the loading code, by path: several views, a region across the
-    seam, Animate-Anything's mask input; outside the region the input, bit for bit."""
-    from pano4d.animate.svd import animate_svd
-    from pano4d.regions import blend_weight
-
-    cfg, panorama, moving = _scene(tmp_path, tiny_svd_mask)
-    panorama = torch.from_numpy(read_image(cfg.panorama)).permute(2, 0, 1).contiguous()
-    video = animate_svd(cfg, panorama, moving, progress=True)
-    log = capsys.readouterr().out
-    active = int(log.split("svd: ")[1].split("/")[0])
-    assert active >= 2, log  # the fusion is exercised
-    assert "views disagree by" in log
-    assert video.shape == (FRAMES, 3, 64, 128) and video.dtype == torch.float32
-    assert torch.isfinite(video).all()
-    outside = ~moving
-    assert torch.equal(video[:, :, outside], panorama[:, outside][None].expand(FRAMES, -1, -1))
-    inner = blend_weight(moving, cfg.animate.border_px) == 1
-    assert float((video[:, :, inner] - panorama[:, inner]).abs().mean()) > 1e-3
-
-
-def _plain_svd_loop(model, condition, latents: torch.Tensor, steps: int) -> torch.Tensor:
-    """diffusers' StableVideoDiffusionPipeline loop on one view's latents, with its own
-    scheduler stepping (scale_model_input, UNet, CFG, scheduler.step)."""
-    from diffusers import EulerDiscreteScheduler
-
-    scheduler = EulerDiscreteScheduler.from_config(model.scheduler.config)
-    scheduler.set_timesteps(steps)
-    frames = latents.shape[1]
-    image_latents = condition.image_latents[:, None].expand(-1, frames, -1, -1, -1)
-    embeddings = torch.cat([torch.zeros_like(condition.embeddings), condition.embeddings])
-    time_ids = torch.tensor([[model.settings.fps - 1, model.settings.motion_bucket,
-                              model.settings.noise_aug]] * 2)  # fmt: skip
-    guidance = torch.linspace(model.settings.guidance_min, model.settings.guidance_max, frames)
-    image_in = torch.cat([torch.zeros_like(image_latents), image_latents])
-    for t in scheduler.timesteps:
-        model_in = scheduler.scale_model_input(torch.cat([latents] * 2), t)
-        with torch.no_grad():
-            out = model.unet(
-                torch.cat([model_in, image_in], dim=2),
-                t,
-                encoder_hidden_states=embeddings,
-                added_time_ids=time_ids,
-            ).sample
-        uncond, cond = out.chunk(2)
-        out = uncond + guidance.view(1, frames, 1, 1, 1) * (cond - uncond)
-        latents = scheduler.step(out, t, latents).prev_sample
-    return latents
-
-
-def test_one_view_reproduces_plain_single_view_denoising(tiny_svd: Path) -> None:
-    """The panoramic loop restricted to one view against diffusers' own loop on that view.
-
-    Tolerance: diffusers forms x + (x − x̂₀)(σ' − σ)/σ in float32 with |x| ≈ σ_max = 700,
-    which rounds at ulp(700) ≈ 6e-5; our loop keeps noise and signal apart and does not.
-    """
-    from pano4d.animate.svd import load_svd
-    from pano4d.config import AnimateConfig
-
-    settings = AnimateConfig(frames=FRAMES, steps=STEPS)
-    model = load_svd(tiny_svd, settings, torch.device("cpu"), torch.float32)
-    camera = Camera.from_fov(80.0, 32, 32, forward=(0.3, -1.0, 0.4))
-    [lat] = latent_cameras([camera], model.scale_factor)
-    ico, footprints = footprints_for_views([lat])
-    image = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(8))
-    condition = model.encode_condition(image, FRAMES, None, seed=0)
-    denoiser = PanoramicDenoiser(model, footprints, view_batch=1)
-    signal = denoiser.sample(condition, torch.zeros(4, len(ico)), FRAMES, STEPS, seed=9)
-    panoramic = footprints.project_mean(signal)
-    # The same initial noise, as the view sees it, through the plain loop.
-    noise = sphere_white_noise(len(ico), (FRAMES, 4), torch.Generator().manual_seed(9))
-    _, init_scale = model.schedule(STEPS)
-    plain = _plain_svd_loop(model, condition, init_scale * footprints.project_white(noise), STEPS)
-    assert float(plain.abs().mean()) > 0.1
-    torch.testing.assert_close(panoramic, plain, rtol=1e-3, atol=1e-3)
-    assert float((panoramic - plain).abs().mean()) < 1e-4
-
-
-def test_fp16_path_runs_without_nan(tiny_svd: Path) -> None:
-    """float16 on the CPU (torch supports these ops there): conditioning, one prediction
-    at the largest and smallest σ, decoding; all finite and close to float32."""
-    from pano4d.animate.svd import load_svd
-    from pano4d.config import AnimateConfig
-
-    settings = AnimateConfig(frames=2, steps=STEPS)
-    image = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(11))
-    latents = torch.randn(1, 2, 4, 4, 4, generator=torch.Generator().manual_seed(12))
-    results = {}
-    for dtype in (torch.float32, torch.float16):
-        model = load_svd(tiny_svd, settings, torch.device("cpu"), dtype)
-        assert model.unet.dtype == dtype
-        condition = model.encode_condition(image, 2, None, seed=0)
-        sigmas, init_scale = model.schedule(STEPS)
-        first = model.predict_x0(init_scale * latents, float(sigmas[0]), condition)
-        last = model.predict_x0(first, float(sigmas[-2]), condition)
-        results[dtype] = (first, last, model.decode(last))
-    for half, full in zip(results[torch.float16], results[torch.float32], strict=True):
-        assert half.dtype == torch.float32 and torch.isfinite(half).all()
-        assert float((half - full).abs().max()) < 0.05 * float(full.abs().max()) + 1e-3

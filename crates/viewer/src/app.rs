@@ -14,6 +14,7 @@ use crate::camera::{
     CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG,
 };
 use crate::render::{save_png, FrameOptions, FrameRenderer};
+use crate::residency;
 use crate::scene::Scene;
 use crate::stream::DynamicStream;
 use crate::time::TimeControl;
@@ -63,8 +64,9 @@ impl DisplayTexture {
 /// A scene together with its playback state.
 struct OpenScene {
     scene: Arc<Scene>,
-    /// Decodes the next timestamp while this one is shown.
-    stream: DynamicStream,
+    /// Decodes the next timestamp while this one is shown; `None` when every timestamp's
+    /// dynamic set is on the GPU.
+    stream: Option<DynamicStream>,
     time: TimeControl,
 }
 
@@ -131,19 +133,28 @@ impl ViewerApp {
         app
     }
 
-    /// Opens a scene, replacing the current one; failures are shown in the window.
+    /// Opens a scene, replacing the current one; failures are shown in the window. Its
+    /// dynamic sets stay on the GPU when they fit the budget ([`residency`]).
     pub fn open(&mut self, path: &Path) {
-        match Scene::open(path) {
-            Ok(scene) => {
+        let opened = Scene::open(path).map_err(|e| format!("Cannot open {}: {e}", path.display()));
+        let loaded = opened.and_then(|scene| {
+            let resident = match &mut self.renderer {
+                Some(renderer) => {
+                    let budget = residency::budget_from_env()?;
+                    renderer.load_scene_resident(&scene, budget).is_resident()
+                }
+                None => false,
+            };
+            Ok((scene, resident))
+        });
+        match loaded {
+            Ok((scene, resident)) => {
                 self.extent = scene.extent;
                 self.camera = ViewCamera::panorama_viewpoint(&self.extent);
-                if let Some(renderer) = &mut self.renderer {
-                    renderer.load_scene(&scene);
-                }
                 let scene = Arc::new(scene);
                 self.opened = Some(OpenScene {
                     time: TimeControl::new(&scene.timestamps),
-                    stream: DynamicStream::new(Arc::clone(&scene)),
+                    stream: (!resident).then(|| DynamicStream::new(Arc::clone(&scene))),
                     scene,
                 });
                 if self.renderer.is_some() {
@@ -152,7 +163,7 @@ impl ViewerApp {
             }
             Err(e) => {
                 self.opened = None;
-                self.error = Some(format!("Cannot open {}: {e}", path.display()));
+                self.error = Some(e);
             }
         }
         self.dirty = true;
@@ -270,17 +281,19 @@ impl ViewerApp {
         let display = self.display.as_ref().expect("created above");
         let camera = self.camera.to_camera(width, height);
         let t = open.time.index;
-        let shown = if time_changed {
-            let shown = open
-                .stream
-                .take(t)
-                .and_then(|dynamic| renderer.show(&open.scene, t, &dynamic));
-            if open.time.playing {
-                open.stream.prefetch((t + 1) % open.time.count());
+        let shown = match (&mut open.stream, time_changed) {
+            (_, false) => Ok(()),
+            // Every dynamic set on the GPU: a GPU-side copy.
+            (None, true) => renderer.show_time(&open.scene, t),
+            (Some(stream), true) => {
+                let shown = stream
+                    .take(t)
+                    .and_then(|dynamic| renderer.show(&open.scene, t, &dynamic));
+                if open.time.playing {
+                    stream.prefetch((t + 1) % open.time.count());
+                }
+                shown
             }
-            shown
-        } else {
-            Ok(())
         };
         let drawn = shown.and_then(|()| renderer.draw(&camera, &self.options, &display.texture));
         match drawn {
@@ -366,6 +379,12 @@ impl ViewerApp {
                     .map_or("none", |r| r.adapter().name.as_str()),
             );
             ui.end_row();
+            let dynamic = self.opened.as_ref().is_some_and(|o| o.scene.is_dynamic());
+            if let (Some(renderer), true) = (&self.renderer, dynamic) {
+                ui.label("Timestamps");
+                ui.label(renderer.playback().describe());
+                ui.end_row();
+            }
         });
         ui.separator();
         ui.label("Camera");

@@ -7,6 +7,7 @@
 //! - [`stream`]: dynamic sets decoded ahead of playback on a worker thread.
 //! - [`time`]: play, pause, loop and step through the timestamps.
 //! - [`render`]: the frame render path shared by the window, headless use and the bench.
+//! - [`residency`]: whether every timestamp's dynamic set stays on the GPU.
 //! - [`headless`]: one view to an image, without a window.
 //! - [`app`]: the egui application.
 //! - [`edit`]: the region editor (`--edit scene.yaml`).
@@ -17,6 +18,7 @@ pub mod camera;
 pub mod edit;
 pub mod headless;
 pub mod render;
+pub mod residency;
 pub mod scene;
 pub mod stream;
 pub mod synthetic;

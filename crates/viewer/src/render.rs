@@ -2,6 +2,11 @@
 //! GPU, drawn by splat-core's forward rasteriser (the same kernels as training and
 //! `pano4d render`) into an 8-bit RGBA texture that egui shows as it is.
 //!
+//! Dynamic sets reach the GPU in one of two ways ([`crate::residency`]): every timestamp's
+//! set stored on the GPU when the scene is loaded, and copied on the GPU into the slot
+//! after the static set when its timestamp is shown (the draw is then the still frame's
+//! draw); or, when they do not fit, decoded and uploaded into that slot as they are shown.
+//!
 //! The same [`FrameRenderer`] runs on the device egui created (the window and the UI
 //! tests) and on a device of its own (headless rendering and the benchmark).
 
@@ -13,9 +18,10 @@ use splat_core::camera::Camera;
 use splat_core::gaussians::{sh_coeffs, GaussianSet, SceneInput};
 use splat_core::raster::{
     target_texture, AdapterSummary, GpuContext, RasterError, RenderSettings, Renderer,
-    ResidentScene,
+    ResidentScene, StoredSet,
 };
 
+use crate::residency::{self, Playback};
 use crate::scene::Scene;
 
 /// How a frame is drawn, besides the camera.
@@ -53,14 +59,19 @@ fn too_large_message(count: usize, need: u64, allowed: Option<u64>, adapter: &st
 }
 
 /// Draws scenes with splat-core's forward rasteriser on one device. The Gaussians stay on
-/// the GPU: the static set is uploaded once per scene, a dynamic set when its timestamp is
-/// shown, and frames are drawn into a texture without a trip through the host.
+/// the GPU: the static set is uploaded once per scene, a dynamic set is copied from its
+/// stored twin or uploaded when its timestamp is shown, and frames are drawn into a
+/// texture without a trip through the host.
 pub struct FrameRenderer {
     renderer: Renderer,
     adapter: AdapterSummary,
     /// The static set followed by the shown dynamic set; `None` until the first
     /// [`Self::show_time`] after [`Self::load_scene`].
     resident: Option<ResidentScene>,
+    /// Every timestamp's dynamic set when [`Self::load_scene_resident`] kept them; empty
+    /// when they are streamed.
+    stored: Vec<StoredSet>,
+    playback: Playback,
     static_len: usize,
     /// Timestamp index whose dynamic set is resident.
     shown_time: Option<usize>,
@@ -104,6 +115,10 @@ impl FrameRenderer {
             renderer,
             adapter,
             resident: None,
+            stored: Vec::new(),
+            playback: Playback::Streamed {
+                reason: "no scene loaded".into(),
+            },
             static_len: 0,
             shown_time: None,
             dynamic_len: 0,
@@ -120,21 +135,94 @@ impl FrameRenderer {
         &self.renderer.context().device
     }
 
-    /// Forgets the previous scene; the next [`Self::show_time`] uploads `scene`'s static set.
+    /// Forgets the previous scene; dynamic sets will be streamed (decoded and uploaded when
+    /// shown), and the next [`Self::show_time`] uploads `scene`'s static set. For a single
+    /// view this is all that is needed.
     pub fn load_scene(&mut self, scene: &Scene) {
         self.resident = None;
+        self.stored = Vec::new();
+        self.playback = Playback::Streamed {
+            reason: "loaded for streaming".into(),
+        };
         self.static_len = scene.static_set.len();
         self.shown_time = None;
         self.dynamic_len = 0;
     }
 
-    /// Makes timestamp `t` the one drawn, decoding and uploading its dynamic set unless
-    /// it is the one shown.
+    /// Loads `scene` for playback: every timestamp's dynamic set is decoded once and kept
+    /// on the GPU when [`residency::plan`] says they fit in `budget` bytes (the static set
+    /// is uploaded now too), else they are streamed as with [`Self::load_scene`]. Anything
+    /// that fails on the way (a damaged set, GPU memory) also leaves them streamed, so
+    /// that its error shows at the timestamp it concerns, as when streaming.
+    pub fn load_scene_resident(&mut self, scene: &Scene, budget: u64) -> &Playback {
+        self.load_scene(scene);
+        let planned = scene.dynamic_counts().and_then(|counts| {
+            let k = sh_coeffs(scene.sh_degree);
+            let max_buffer_size = self.device().limits().max_buffer_size;
+            let plan = residency::plan(&counts, k, max_buffer_size, budget);
+            if plan.is_resident() {
+                self.keep_all(scene, &counts)?;
+            }
+            Ok(plan)
+        });
+        self.playback = planned.unwrap_or_else(|reason| {
+            self.load_scene(scene);
+            Playback::Streamed { reason }
+        });
+        &self.playback
+    }
+
+    /// Uploads the static set and stores every dynamic set (of `counts` Gaussians).
+    fn keep_all(&mut self, scene: &Scene, counts: &[usize]) -> Result<(), String> {
+        // Room for the static set and the largest dynamic set, exactly: every size is known.
+        let largest = counts.iter().copied().max().unwrap_or(0);
+        self.resident = Some(self.allocate(self.static_len + largest, scene.sh_degree)?);
+        self.write(0, &scene.static_set)?;
+        self.stored = (0..counts.len())
+            .map(|t| self.store(&scene.dynamic_set(t)?))
+            .collect::<Result<_, _>>()?;
+        Ok(())
+    }
+
+    /// How the loaded scene's dynamic sets reach the GPU.
+    pub fn playback(&self) -> &Playback {
+        &self.playback
+    }
+
+    fn store(&self, set: &GaussianSet) -> Result<StoredSet, String> {
+        let ctx = self.renderer.context();
+        let out_of_memory = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let stored = StoredSet::upload(&ctx.device, &ctx.queue, &SceneInput::from(set));
+        if pollster::block_on(out_of_memory.pop()).is_some() {
+            return Err(format!(
+                "{} ran out of memory keeping the dynamic sets; set {} lower to stream them",
+                self.adapter.name,
+                residency::BUDGET_ENV
+            ));
+        }
+        stored.map_err(|e| e.to_string())
+    }
+
+    /// Makes timestamp `t` the one drawn unless it is the one shown: a GPU-side copy of
+    /// its stored dynamic set, or (streaming) decoding and uploading it.
     pub fn show_time(&mut self, scene: &Scene, t: usize) -> Result<(), String> {
         if self.shown_time == Some(t) {
             return Ok(());
         }
-        self.show(scene, t, &scene.dynamic_set(t)?)
+        let Some(stored) = self.stored.get(t) else {
+            return self.show(scene, t, &scene.dynamic_set(t)?);
+        };
+        let ctx = self.renderer.context();
+        let resident = self
+            .resident
+            .as_mut()
+            .expect("allocated when the sets were stored");
+        resident
+            .copy_from(&ctx.device, &ctx.queue, self.static_len, stored)
+            .map_err(|e| e.to_string())?;
+        self.dynamic_len = stored.len();
+        self.shown_time = Some(t);
+        Ok(())
     }
 
     /// Makes timestamp `t`, whose dynamic set is `dynamic` (e.g. decoded ahead by a
@@ -241,11 +329,19 @@ impl FrameRenderer {
         }
         drawn.map_err(|e| e.to_string())?;
         // Wait for the GPU so that the frame time measures the frame, not its submission.
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| e.to_string())?;
+        self.wait()?;
         self.last_render = start.elapsed();
         Ok(())
+    }
+
+    /// Waits until the GPU has done all the work queued so far, buffer writes included.
+    pub fn wait(&self) -> Result<(), String> {
+        // Writes wait in the queue for the next submission: submit them.
+        self.renderer.context().queue.submit([]);
+        self.device()
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| e.to_string())
     }
 
     /// Draws the shown timestamp into a texture of the renderer's own and reads it back.
@@ -297,22 +393,80 @@ pub fn save_png(image: &RgbaImage, path: &Path) -> Result<(), String> {
 mod tests {
     use super::*;
     use crate::camera::ViewCamera;
+    use crate::residency::Playback;
     use crate::synthetic;
     use splat_core::ply4d;
     use splat_core::raster::binding_limit;
 
     fn open(tag: &str, static_count: usize, dynamic_count: usize, times: usize) -> Scene {
+        let generated = synthetic::scene(static_count, dynamic_count, times, 1, 5);
+        open_generated(tag, &generated)
+    }
+
+    fn open_generated(tag: &str, generated: &ply4d::Scene4d) -> Scene {
         let dir = std::env::temp_dir().join(format!("pano4d-render-{tag}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("scene.ply4d");
-        ply4d::write(
-            &path,
-            &synthetic::scene(static_count, dynamic_count, times, 1, 5),
-        )
-        .unwrap();
+        ply4d::write(&path, generated).unwrap();
         let scene = Scene::open(&path).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
         scene
+    }
+
+    /// Five timestamps whose dynamic sets shrink from 400 to 40 Gaussians.
+    fn open_varied(tag: &str) -> Scene {
+        let mut generated = synthetic::scene(3_000, 400, 5, 1, 5);
+        for (t, set) in generated.dynamic.iter_mut().enumerate() {
+            let n = 400 - 90 * t;
+            set.means.truncate(n);
+            set.log_scales.truncate(n);
+            set.quats.truncate(n);
+            set.opacity_logits.truncate(n);
+            set.sh.truncate(n * 3 * sh_coeffs(set.sh_degree));
+        }
+        open_generated(tag, &generated)
+    }
+
+    fn all_dynamic_bytes(scene: &Scene) -> u64 {
+        let k = sh_coeffs(scene.sh_degree);
+        let counts = scene.dynamic_counts().unwrap();
+        counts.iter().map(|&n| ResidentScene::bytes_for(n, k)).sum()
+    }
+
+    #[test]
+    fn resident_sets_draw_what_streamed_sets_draw_at_every_timestamp() {
+        let scene = open_varied("resident-all");
+        let all = all_dynamic_bytes(&scene);
+        let mut resident = FrameRenderer::headless().unwrap();
+        let playback = resident.load_scene_resident(&scene, all);
+        assert_eq!(*playback, Playback::Resident { bytes: all });
+        let mut streamed = FrameRenderer::headless().unwrap();
+        streamed.load_scene(&scene);
+        // Forward, backward and jumps: a smaller set after a larger one and the reverse.
+        for t in [0, 1, 2, 3, 4, 2, 0, 4, 1] {
+            let got = frame(&mut resident, &scene, t, 1.0);
+            let want = frame(&mut streamed, &scene, t, 1.0);
+            assert_eq!(resident.counts(), streamed.counts(), "timestamp {t}");
+            assert_eq!(resident.counts().1, 400 - 90 * t);
+            assert!(got.pixels().any(|p| p.0[..3] != [0, 0, 0]), "nothing drawn");
+            assert!(got == want, "timestamp {t}");
+        }
+    }
+
+    #[test]
+    fn scenes_over_the_budget_are_streamed_and_draw_the_same() {
+        let scene = open_varied("over-budget");
+        let all = all_dynamic_bytes(&scene);
+        let mut renderer = FrameRenderer::headless().unwrap();
+        let playback = renderer.load_scene_resident(&scene, all - 1).clone();
+        assert!(!playback.is_resident(), "{playback:?}");
+        assert!(playback.describe().contains("budget"), "{playback:?}");
+        for t in [3, 0, 4] {
+            assert!(frame(&mut renderer, &scene, t, 1.0) == fresh_frame(&scene, t));
+        }
+        // Loading again with room keeps them, on the same renderer.
+        assert!(renderer.load_scene_resident(&scene, all).is_resident());
+        assert!(frame(&mut renderer, &scene, 4, 1.0) == fresh_frame(&scene, 4));
     }
 
     fn frame(renderer: &mut FrameRenderer, scene: &Scene, t: usize, scale: f32) -> RgbaImage {

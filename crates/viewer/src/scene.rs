@@ -19,6 +19,8 @@ use crate::camera::SceneExtent;
 pub const SEQUENCE_FPS: f64 = 30.0;
 /// Means looked at to estimate the scene's extent.
 const EXTENT_SAMPLES: usize = 200_000;
+/// How far into a `.ply` its header may reach (as far as `ply::parse_header` looks).
+const HEADER_BYTES: u64 = 1 << 20;
 
 enum Source {
     Ply4d(Box<Ply4dReader>),
@@ -100,6 +102,19 @@ fn sequence_frames(dir: &Path) -> Result<Vec<PathBuf>, String> {
     // Zero-padded names (0000.ply, 0001.ply, ...) sort into frame order.
     frames.sort();
     Ok(frames)
+}
+
+/// The vertex count in the header of the `.ply` at `path` (read up to the header's end).
+fn vertex_count(path: &Path) -> Result<usize, String> {
+    let mut head = Vec::new();
+    File::open(path)
+        .and_then(|file| file.take(HEADER_BYTES).read_to_end(&mut head))
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let header = ply::parse_header(&head).map_err(|e| format!("{}: {e}", path.display()))?;
+    header
+        .element("vertex")
+        .map(|vertex| vertex.count)
+        .ok_or_else(|| format!("{}: the PLY header has no vertex element", path.display()))
 }
 
 impl Scene {
@@ -200,6 +215,19 @@ impl Scene {
         }
     }
 
+    /// Gaussians in each timestamp's dynamic set, without decoding them: the `.ply4d`'s
+    /// section table, or each frame file's header.
+    pub fn dynamic_counts(&self) -> Result<Vec<usize>, String> {
+        match &self.source {
+            Source::Ply4d(reader) if reader.num_times() > 0 => Ok(reader.sections()[1..]
+                .iter()
+                .map(|section| section.count as usize)
+                .collect()),
+            Source::Ply4d(_) | Source::Ply => Ok(vec![0; self.num_times()]),
+            Source::Sequence(frames) => frames.iter().map(|f| vertex_count(f)).collect(),
+        }
+    }
+
     /// The timestamp index nearest to `seconds`.
     pub fn index_at(&self, seconds: f64) -> usize {
         self.timestamps
@@ -253,6 +281,11 @@ mod tests {
         assert_eq!(sequence.num_times(), 4);
         assert!(sequence.static_set.is_empty());
         assert_eq!(sequence.dynamic_set(1).unwrap(), scene.dynamic[1]);
+        // Counts without decoding, from the section table or the frames' headers.
+        let counts: Vec<usize> = scene.dynamic.iter().map(|set| set.len()).collect();
+        assert_eq!(opened.dynamic_counts().unwrap(), counts);
+        assert_eq!(sequence.dynamic_counts().unwrap(), counts);
+        assert_eq!(single.dynamic_counts().unwrap(), vec![0]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -7,7 +7,8 @@ and writes (docs/design.md, "Files a run writes")::
 
     output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
     output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
-    output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames
+    output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames, and
+                                       the backend's own (svd: how it batched the UNet)
     output/animate/done.json           the inputs' hash: a finished run is skipped
 
 Every file is written atomically. ``run.json`` records the same hash when a run starts: a
@@ -83,21 +84,27 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
             print_metrics(console, metrics)
             return AnimateResult(folder, paths, video, metrics, True, 0.0)
 
-    if _read_json(folder / "run.json").get("inputs_hash") != key:
+    run: dict[str, Any] = {"inputs_hash": key, "config_hash": config_hash(cfg)}
+    previous = _read_json(folder / "run.json")
+    if previous.get("inputs_hash") != key:
         for stale in (frames_dir, folder / "done.json", folder / "metrics.json", video):
             if stale.is_dir():
                 shutil.rmtree(stale)
             else:
                 stale.unlink(missing_ok=True)
+    elif "backend" in previous:
+        run["backend"] = previous["backend"]  # what made the frames kept
     (folder / "done.json").unlink(missing_ok=True)
-    write_json_atomic(folder / "run.json", {"inputs_hash": key, "config_hash": config_hash(cfg)})
+    write_json_atomic(folder / "run.json", run)
 
     panorama = read_panorama(cfg.panorama)
     height, width = panorama.shape[:2]
     regions = build_regions(cfg, width, height)
     missing = [t for t, p in enumerate(paths) if not p.is_file()]
     if missing:
-        render = _backend(cfg, panorama, regions)
+        render, run["backend"] = _backend(cfg, panorama, regions)
+        # Kept with the run, so that a run resumed after its last frame still reports them.
+        write_json_atomic(folder / "run.json", run)
         with Bars(enabled=progress, console=console) as bars:
             task = bars.task(f"animate ({cfg.animate.backend})", count, count - len(missing))
             for t in missing:
@@ -107,6 +114,7 @@ def run_animate(cfg: SceneConfig, progress: bool = True) -> AnimateResult:
 
     metrics = _write_video_and_measure(paths, video, panorama, regions, cfg.animate.fps)
     metrics["backend"] = cfg.animate.backend
+    metrics.update(run.get("backend", {}))
     metrics["seconds"] = time.perf_counter() - started
     write_json_atomic(folder / "metrics.json", metrics)
     write_json_atomic(
@@ -151,13 +159,14 @@ def enforce_static(
 # --- backends ----------------------------------------------------------------------------
 def _backend(
     cfg: SceneConfig, panorama: np.ndarray, regions: Regions
-) -> Callable[[int], np.ndarray | torch.Tensor]:
-    """A function from frame index to frame (H, W, 3) for the configured backend."""
+) -> tuple[Callable[[int], np.ndarray | torch.Tensor], dict[str, Any]]:
+    """A function from frame index to frame (H, W, 3) for the configured backend, and what
+    the backend reports for the metrics (svd: how it batched the UNet)."""
     if cfg.animate.backend == "flow":
         from pano4d.animate.flow import FlowAnimator
 
         animator = FlowAnimator(torch.from_numpy(panorama), regions, cfg.animate.frames, cfg.seed)
-        return animator.frame
+        return animator.frame, {}
     if cfg.animate.backend == "svd":
         weights = cfg.animate.weights
         if weights is None or not Path(weights).is_dir():
@@ -166,16 +175,20 @@ def _backend(
                 f"got {weights} (not found)"
             )
         try:
-            from pano4d.animate.svd import animate_svd
+            from pano4d.animate.svd import AttentionLimitError, animate_svd
         except ImportError as error:
             raise AnimateError(
                 f"backend 'svd' is not available in this installation ({error}); use backend: flow"
             ) from error
-        video = animate_svd(cfg, torch.from_numpy(panorama).permute(2, 0, 1), regions.mask, True)
+        try:
+            made = animate_svd(cfg, torch.from_numpy(panorama).permute(2, 0, 1), regions.mask)
+        except AttentionLimitError as error:
+            raise AnimateError(str(error)) from error
+        video = made.video
         expected = (cfg.animate.frames, 3, *panorama.shape[:2])
         if tuple(video.shape) != expected:
             raise AnimateError(f"backend 'svd' returned {tuple(video.shape)}, expected {expected}")
-        return lambda t: video[t].permute(1, 2, 0).float().cpu()
+        return lambda t: video[t].permute(1, 2, 0).float().cpu(), made.batching
     raise AnimateError(f"unknown animate backend {cfg.animate.backend!r}")
 
 

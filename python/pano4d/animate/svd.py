@@ -16,11 +16,11 @@ everything outside the region bit-identical to the input.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +28,7 @@ import torch.nn.functional as F
 from pano4d.animate.decode import tiled_equirect
 from pano4d.animate.denoiser import PanoramicDenoiser, latent_cameras
 from pano4d.animate.noise import footprints_for_views
+from pano4d.animate.unet_attention import CUDA_GRID_LIMIT, max_unet_rows
 from pano4d.camera import Camera
 from pano4d.config import AnimateConfig, SceneConfig
 from pano4d.device import resolve_device
@@ -66,6 +67,19 @@ DECODE_OVERLAP = 8
 
 class WeightsError(FileNotFoundError):
     """A weights folder that is missing or lacks files the backend needs."""
+
+
+class AttentionLimitError(ValueError):
+    """Views so large that one view's attention calls exceed the CUDA kernels' limits."""
+
+
+def attention_limit_message(latent_height: int, latent_width: int, frames: int) -> str:
+    return (
+        f"svd: a view of {latent_height}x{latent_width} latent cells and {frames} frames "
+        f"gives the UNet's attention more than {CUDA_GRID_LIMIT:,} sequences in one call, the "
+        "most the CUDA attention kernels take; lower animate.fov_deg (smaller views) and "
+        "raise animate.views to keep the sphere covered"
+    )
 
 
 def _weight_files(folder: Path) -> list[str]:
@@ -163,6 +177,19 @@ class SVDDenoiser:
         self.clip_mean = torch.tensor(clip_mean, device=device).view(1, 3, 1, 1)
         self.clip_std = torch.tensor(clip_std, device=device).view(1, 3, 1, 1)
         self._timesteps: dict[float, float] = {}
+        # Rows of every UNet call so far (the animate metrics report the batch used).
+        self.unet_call_rows: list[int] = []
+
+    @property
+    def guidance_branches(self) -> int:
+        """UNet rows per view: the unguided and the guided prediction with guidance."""
+        return 2 if self.do_guidance else 1
+
+    def unet_rows(self, frames: int, height: int, width: int) -> int:
+        """The most rows (views × guidance branches) one UNet call on ``frames`` latent frames
+        of ``height`` × ``width`` may take with every attention call inside the CUDA kernels'
+        limits (unet_attention.py); 0 when one row alone exceeds them."""
+        return max_unet_rows(self.unet.config, height, width, frames)
 
     # --- sampler schedule ---------------------------------------------------------------
     def schedule(self, steps: int) -> tuple[torch.Tensor, float]:
@@ -239,9 +266,7 @@ class SVDDenoiser:
             embeddings = torch.cat([torch.zeros_like(embeddings), embeddings])
             time_ids = torch.cat([time_ids, time_ids])
         timestep = torch.tensor(self._timesteps[sigma], device=self.device)
-        out = self.unet(
-            cond_in, timestep, encoder_hidden_states=embeddings, added_time_ids=time_ids
-        ).sample.float()
+        out = self._unet_in_parts(cond_in, timestep, embeddings, time_ids)
         if self.do_guidance:
             uncond, cond = out.chunk(2)
             scale = torch.linspace(
@@ -254,6 +279,32 @@ class SVDDenoiser:
         if prediction == "epsilon":
             return latents - sigma * out
         raise ValueError(f"unsupported scheduler prediction_type {prediction!r}")
+
+    def _unet_in_parts(
+        self,
+        model_in: torch.Tensor,
+        timestep: torch.Tensor,
+        embeddings: torch.Tensor,
+        time_ids: torch.Tensor,
+    ) -> torch.Tensor:
+        """The UNet on ``model_in`` (rows, L, C, h, w), in calls of at most ``unet_rows`` rows
+        (rows are independent: the result equals one call's)."""
+        rows, frames = model_in.shape[:2]
+        limit = self.unet_rows(frames, *model_in.shape[-2:])
+        if limit < 1:
+            raise AttentionLimitError(attention_limit_message(*model_in.shape[-2:], frames))
+        parts = []
+        for start in range(0, rows, limit):
+            part = slice(start, start + limit)
+            out = self.unet(
+                model_in[part],
+                timestep,
+                encoder_hidden_states=embeddings[part],
+                added_time_ids=time_ids[part],
+            ).sample
+            parts.append(out.float())
+            self.unet_call_rows.append(out.shape[0])
+        return torch.cat(parts)
 
     # --- VAE ----------------------------------------------------------------------------
     @torch.no_grad()
@@ -285,13 +336,17 @@ def load_svd(
     folder = Path(folder)
     check_weights_folder(folder)
 
+    # The dtype goes to from_pretrained (a cast afterwards would skip the modules diffusers
+    # keeps in float32). Loading straight into empty modules needs accelerate; without it,
+    # say so rather than have diffusers fall back with a warning.
+    low_memory = importlib.util.find_spec("accelerate") is not None
+
     def network(cls: type, name: str) -> torch.nn.Module:
-        kwargs = {"subfolder": name, "torch_dtype": dtype}
+        kwargs: dict[str, object] = {"subfolder": name, "low_cpu_mem_usage": low_memory}
+        kwargs["dtype" if cls is CLIPVisionModelWithProjection else "torch_dtype"] = dtype
         variant = _variant(folder / name)
         if variant is not None:
             kwargs["variant"] = variant
-        if cls is CLIPVisionModelWithProjection:
-            kwargs["dtype"] = kwargs.pop("torch_dtype")
         return cls.from_pretrained(folder, **kwargs).to(device).eval()
 
     unet = network(UNetSpatioTemporalConditionModel, "unet")
@@ -309,18 +364,22 @@ def load_svd(
 
 # --- the whole phase ----------------------------------------------------------------------
 def view_batch(model: SVDDenoiser, frames: int, cam: Camera, budget_bytes: int) -> int:
-    """How many views one UNet call may take within ``budget_bytes`` of activations."""
-    pixels = (cam.width // model.scale_factor) * (cam.height // model.scale_factor)
+    """Views per step batch: as many as ``budget_bytes`` of UNet activations hold, and no
+    more than one UNet call takes within the attention kernels' limits. At least 1: a view
+    whose guidance branches exceed the limits together gets one call per branch."""
+    height, width = cam.height // model.scale_factor, cam.width // model.scale_factor
     per_view = (
         frames
-        * pixels
+        * height
+        * width
         * int(model.unet.config.block_out_channels[0])
         * torch.finfo(model.dtype).bits
         // 8
         * _UNET_ACTIVATION_FACTOR
-        * (2 if model.do_guidance else 1)
+        * model.guidance_branches
     )
-    return max(1, budget_bytes // per_view)
+    by_kernels = model.unet_rows(frames, height, width) // model.guidance_branches
+    return max(1, min(budget_bytes // per_view, by_kernels))
 
 
 def memory_budget(device: torch.device) -> int:
@@ -358,6 +417,8 @@ def prepare_panorama(
     if height % s or width % s:
         raise ValueError(f"panorama {width}x{height} must have sides divisible by {s}")
     side = matched_view_size(width, settings.fov_deg, model.size_multiple)
+    if model.unet_rows(settings.frames, side // s, side // s) < 1:
+        raise AttentionLimitError(attention_limit_message(side // s, side // s, settings.frames))
     cameras = view_layout(settings.views, settings.fov_deg, side)
     active = active_views(cameras, moving)
     if not active:
@@ -383,7 +444,7 @@ def prepare_panorama(
     )[0]
     static = equirect_sampler(ico.points, width // s, height // s).apply(static_grid)
     budget = memory_budget(model.device) if memory_bytes is None else memory_bytes
-    batch = view_batch(model, settings.frames, chosen[0], budget)
+    batch = min(len(active), view_batch(model, settings.frames, chosen[0], budget))
     denoiser = PanoramicDenoiser(model, footprints, batch)
     return PanoramaSetup(
         side, len(cameras), active, ico, latent_views, denoiser, condition, static_grid, static
@@ -407,16 +468,24 @@ def decode_panorama(model: SVDDenoiser, setup: PanoramaSetup, signal: torch.Tens
     )
 
 
+@dataclass
+class SVDVideo:
+    """What ``animate_svd`` made, and how it batched the UNet."""
+
+    video: torch.Tensor  # (L, 3, H, W) float32
+    batching: dict[str, int]  # for the animate metrics (svd_* keys)
+
+
 def animate_svd(
     cfg: SceneConfig,
     panorama: torch.Tensor,
     moving: torch.Tensor,
     progress: bool = True,
     model: SVDDenoiser | None = None,
-) -> torch.Tensor:
+) -> SVDVideo:
     """Animate ``panorama`` (3, H, W) float32 inside ``moving`` (H, W) bool with SVD.
 
-    Returns (L, 3, H, W) float32: the decoded video blended into the input with the
+    The video is (L, 3, H, W) float32: the decoded video blended into the input with the
     regions' soft weight, so every pixel outside ``moving`` equals the input exactly.
     ``model`` skips loading (tests pass one already loaded).
     """
@@ -428,9 +497,13 @@ def animate_svd(
         model = load_svd(settings.weights, settings, device, resolve_dtype(settings.dtype, device))
     log = print if progress else (lambda *_: None)
     setup = prepare_panorama(model, settings, panorama, moving, cfg.seed)
+    latent = setup.side // model.scale_factor
+    rows_limit = model.unet_rows(settings.frames, latent, latent)
     log(f"svd: {len(setup.active)}/{setup.n_views} views of {setup.side}px see the region; "
         f"{setup.denoiser.footprints.n_points} sphere points, "
-        f"{setup.denoiser.view_batch} views per UNet call")  # fmt: skip
+        f"{setup.denoiser.view_batch} views per step batch, at most {rows_limit} UNet rows "
+        "(views × guidance branches) per call")  # fmt: skip
+    calls_before = len(model.unet_call_rows)
     signal = setup.denoiser.sample(
         setup.condition, setup.static, settings.frames, settings.steps, cfg.seed
     )
@@ -440,108 +513,14 @@ def animate_svd(
             f"{report.disagreement:.4f} before fusion")  # fmt: skip
     video = decode_panorama(model, setup, signal)
     blend = blend_weight(moving, settings.border_px)
-    return torch.where(blend > 0, torch.lerp(panorama[None], video, blend), panorama[None])
-
-
-# --- random-weight models of the real architecture (tests, benchmarks) ----------------
-# SVD's scheduler config (stabilityai/stable-video-diffusion-img2vid-xt).
-SVD_SCHEDULER = {
-    "beta_end": 0.012,
-    "beta_schedule": "scaled_linear",
-    "beta_start": 0.00085,
-    "interpolation_type": "linear",
-    "num_train_timesteps": 1000,
-    "prediction_type": "v_prediction",
-    "sigma_max": 700.0,
-    "sigma_min": 0.002,
-    "steps_offset": 1,
-    "timestep_spacing": "leading",
-    "timestep_type": "continuous",
-    "use_karras_sigmas": True,
-}
-
-
-def save_random_svd(
-    folder: Path, size: str = "tiny", mask_channel: bool = False, seed: int = 0
-) -> Path:
-    """Write ``random_svd_pipeline(size, mask_channel, seed)`` in diffusers format."""
-    random_svd_pipeline(size, mask_channel, seed).save_pretrained(folder)
-    return Path(folder)
-
-
-def random_svd_pipeline(size: str = "tiny", mask_channel: bool = False, seed: int = 0) -> Any:
-    """An SVD StableVideoDiffusionPipeline with random weights.
-
-    ``size="full"``: SVD's own architecture (UNet 320–1280 channels, ViT-H/14 CLIP encoder,
-    the temporal VAE), the real model's FLOPs and memory; ``"tiny"``: the same block types
-    at 32–64 channels, for tests on a CPU. ``mask_channel`` gives the UNet
-    Animate-Anything's extra mask input.
-    """
-    from diffusers import (
-        AutoencoderKLTemporalDecoder,
-        EulerDiscreteScheduler,
-        StableVideoDiffusionPipeline,
-        UNetSpatioTemporalConditionModel,
-    )
-    from transformers import CLIPImageProcessor, CLIPVisionConfig, CLIPVisionModelWithProjection
-
-    torch.manual_seed(seed)
-    extra = 1 if mask_channel else 0
-    if size == "full":
-        unet = UNetSpatioTemporalConditionModel(in_channels=8 + extra, sample_size=96)
-        vae = AutoencoderKLTemporalDecoder(
-            down_block_types=("DownEncoderBlock2D",) * 4,
-            block_out_channels=(128, 256, 512, 512),
-            layers_per_block=2,
-            sample_size=768,
-        )
-        clip = CLIPVisionConfig(
-            hidden_size=1280,
-            intermediate_size=5120,
-            num_attention_heads=16,
-            num_hidden_layers=32,
-            patch_size=14,
-            image_size=224,
-            projection_dim=1024,
-            hidden_act="gelu",
-        )
-    elif size == "tiny":
-        unet = UNetSpatioTemporalConditionModel(
-            in_channels=8 + extra,
-            sample_size=8,
-            down_block_types=("CrossAttnDownBlockSpatioTemporal", "DownBlockSpatioTemporal"),
-            up_block_types=("UpBlockSpatioTemporal", "CrossAttnUpBlockSpatioTemporal"),
-            block_out_channels=(32, 64),
-            addition_time_embed_dim=8,
-            projection_class_embeddings_input_dim=24,
-            layers_per_block=1,
-            cross_attention_dim=32,
-            num_attention_heads=(2, 4),
-            num_frames=4,
-        )
-        vae = AutoencoderKLTemporalDecoder(
-            down_block_types=("DownEncoderBlock2D",) * 4,
-            block_out_channels=(32, 32, 32, 32),
-            layers_per_block=1,
-            sample_size=64,
-        )
-        clip = CLIPVisionConfig(
-            hidden_size=32,
-            intermediate_size=64,
-            num_attention_heads=2,
-            num_hidden_layers=2,
-            patch_size=8,
-            image_size=32,
-            projection_dim=32,
-        )
-    else:
-        raise ValueError(f"size must be 'tiny' or 'full', got {size!r}")
-    return StableVideoDiffusionPipeline(
-        vae=vae.eval(),
-        image_encoder=CLIPVisionModelWithProjection(clip).eval(),
-        unet=unet.eval(),
-        scheduler=EulerDiscreteScheduler(**SVD_SCHEDULER),
-        feature_extractor=CLIPImageProcessor(
-            crop_size=clip.image_size, size={"shortest_edge": clip.image_size}
-        ),
-    )
+    calls = model.unet_call_rows[calls_before:]
+    batching = {
+        "svd_active_views": len(setup.active),
+        "svd_view_size": setup.side,
+        "svd_views_per_batch": setup.denoiser.view_batch,
+        "svd_unet_rows_limit": rows_limit,
+        "svd_unet_batch": max(calls),
+        "svd_unet_calls": len(calls),
+    }
+    blended = torch.where(blend > 0, torch.lerp(panorama[None], video, blend), panorama[None])
+    return SVDVideo(blended, batching)

@@ -25,7 +25,7 @@ pub use backward::Gradients;
 pub use context::{AdapterSummary, GpuContext};
 pub use renderer::{target_texture, RenderSettings, Renderer, TARGET_FORMAT};
 pub(crate) use resident::SceneBuffer;
-pub use resident::{binding_limit, ResidentScene};
+pub use resident::{binding_limit, ResidentScene, StoredSet};
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.
 #[derive(Debug, thiserror::Error)]

@@ -115,6 +115,44 @@ impl ResidentScene {
         part: &SceneInput<'_>,
     ) -> Result<(), RasterError> {
         let (n, k) = part.validate().map_err(RasterError::InvalidInput)?;
+        let places = self.place(first, n, k)?;
+        for (data, (offset, _)) in part.sections().into_iter().zip(places) {
+            if !data.is_empty() {
+                queue.write_buffer(&self.buffer, offset, bytemuck::cast_slice(data));
+            }
+        }
+        self.len = first as u32 + n;
+        Ok(())
+    }
+
+    /// [`Self::write`] of a set already on the GPU: a GPU-side copy of `set` into Gaussians
+    /// `first..first + set.len()`, with no upload from the host.
+    pub fn copy_from(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        first: usize,
+        set: &StoredSet,
+    ) -> Result<(), RasterError> {
+        let places = self.place(first, set.len, set.sh_coeffs)?;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("copy stored set"),
+        });
+        let mut source = 0;
+        for (offset, bytes) in places {
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(&set.buffer, source, &self.buffer, offset, bytes);
+            }
+            source += bytes;
+        }
+        queue.submit([encoder.finish()]);
+        self.len = first as u32 + set.len;
+        Ok(())
+    }
+
+    /// (byte offset, bytes) of each SoA section of `n` Gaussians with `k` SH coefficients
+    /// placed at `first`, or why they cannot go there.
+    fn place(&self, first: usize, n: u32, k: u32) -> Result<[(u64, u64); 5], RasterError> {
         let end = first + n as usize;
         if end > self.capacity as usize || first > self.len as usize {
             return Err(RasterError::InvalidInput(format!(
@@ -128,17 +166,15 @@ impl ResidentScene {
                 self.sh_coeffs
             )));
         }
-        let widths = [3, 3, 4, 1, 3 * self.sh_coeffs as usize];
         let mut section_start = 0;
-        for (data, width) in part.sections().into_iter().zip(widths) {
-            if !data.is_empty() {
-                let offset = section_start + first * width;
-                queue.write_buffer(&self.buffer, 4 * offset as u64, bytemuck::cast_slice(data));
-            }
-            section_start += width * self.capacity as usize;
-        }
-        self.len = end as u32;
-        Ok(())
+        Ok(section_widths(self.sh_coeffs).map(|width| {
+            let place = (
+                4 * (section_start + first as u64 * width),
+                4 * n as u64 * width,
+            );
+            section_start += width * self.capacity as u64;
+            place
+        }))
     }
 
     pub(crate) fn as_buffer(&self) -> SceneBuffer {
@@ -148,5 +184,149 @@ impl ResidentScene {
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
         }
+    }
+}
+
+/// Floats per Gaussian in each SoA section: means, log-scales, quaternions, opacity, SH.
+fn section_widths(sh_coeffs: u32) -> [u64; 5] {
+    [3, 3, 4, 1, 3 * sh_coeffs as u64]
+}
+
+/// A Gaussian set uploaded once into a GPU buffer of its own, in the SoA layout with a
+/// stride of its own length. No shader binds it, so only the device's buffer size limit
+/// applies (not the binding limit); [`ResidentScene::copy_from`] copies it into the
+/// scene on the GPU. The viewer keeps every timestamp's dynamic set this way when they fit.
+pub struct StoredSet {
+    buffer: wgpu::Buffer,
+    len: u32,
+    sh_coeffs: u32,
+}
+
+impl StoredSet {
+    /// Uploads `part`; fails when it is over the device's buffer size limit.
+    pub fn upload(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        part: &SceneInput<'_>,
+    ) -> Result<Self, RasterError> {
+        let (n, k) = part.validate().map_err(RasterError::InvalidInput)?;
+        let bytes = ResidentScene::bytes_for(n as usize, k as usize);
+        let allowed = device.limits().max_buffer_size;
+        if bytes > allowed {
+            return Err(RasterError::TooLarge {
+                gaussians: n as usize,
+                bytes,
+                allowed,
+            });
+        }
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("stored gaussians"),
+            size: bytes.max(4),
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        if n > 0 {
+            queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&part.packed()));
+        }
+        Ok(Self {
+            buffer,
+            len: n,
+            sh_coeffs: k,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.len as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Bytes it holds on the GPU.
+    pub fn bytes(&self) -> u64 {
+        self.buffer.size()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+    use crate::gaussians::GaussianSet;
+    use crate::raster::{target_texture, GpuContext, RenderSettings, Renderer};
+    use glam::DVec3;
+
+    /// `n` SH-degree-1 Gaussians spread in front of a camera at the origin looking along +x.
+    fn set(n: usize, shift: f32) -> GaussianSet {
+        let mut set = GaussianSet::with_capacity(1, n);
+        for i in 0..n {
+            let a = i as f32 * 0.37 + shift;
+            set.means
+                .push([4.0 + a.sin(), 1.5 * (1.3 * a).cos(), (0.7 * a).sin()]);
+            set.log_scales.push([-2.5, -2.0 - 0.3 * a.sin(), -2.2]);
+            set.quats.push([1.0, 0.1 * a.cos(), 0.0, 0.2]);
+            set.opacity_logits.push(a.cos());
+            set.sh.extend((0..12).map(|j| (a + j as f32).sin()));
+        }
+        set
+    }
+
+    #[test]
+    fn a_stored_set_copied_in_draws_what_the_same_set_written_draws() {
+        let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+        let (device, queue) = {
+            let ctx = renderer.context();
+            (ctx.device.clone(), ctx.queue.clone())
+        };
+        let camera = Camera::from_fov(60.0, 40, 30, DVec3::ZERO, DVec3::X, DVec3::Z);
+        let target = target_texture(&device, 40, 30);
+        let settings = RenderSettings::default();
+        let static_set = set(120, 0.0);
+        let [first, second] = [set(70, 5.0), set(30, 9.0)];
+        let stored = [&first, &second]
+            .map(|s| StoredSet::upload(&device, &queue, &SceneInput::from(s)).expect("stored set"));
+        assert_eq!(stored[0].bytes(), ResidentScene::bytes_for(70, 4));
+        let mut written = ResidentScene::new(&device, 200, 4).expect("scene");
+        let mut copied = ResidentScene::new(&device, 200, 4).expect("scene");
+        for scene in [&mut written, &mut copied] {
+            scene
+                .write(&queue, 0, &SceneInput::from(&static_set))
+                .expect("static set");
+        }
+        // Both dynamic sets in turn, the smaller after the larger, as playback does.
+        for (dynamic, stored) in [(&first, &stored[0]), (&second, &stored[1])] {
+            written
+                .write(&queue, 120, &SceneInput::from(dynamic))
+                .expect("write");
+            copied
+                .copy_from(&device, &queue, 120, stored)
+                .expect("copy");
+            assert_eq!(copied.len(), 120 + dynamic.len());
+            let mut frames = Vec::new();
+            for scene in [&written, &copied] {
+                renderer
+                    .draw(scene, &camera, &settings, &target)
+                    .expect("draw");
+                frames.push(renderer.read_rgba8(&target).expect("read back"));
+            }
+            assert!(
+                frames[0].chunks(4).any(|p| p[..3] != [0, 0, 0]),
+                "nothing drawn"
+            );
+            assert!(frames[0] == frames[1], "{} dynamic", dynamic.len());
+        }
+        // The same checks as a write: room, no gap, the scene's SH degree.
+        assert!(copied.copy_from(&device, &queue, 140, &stored[0]).is_err());
+        let mut degree_zero = GaussianSet::with_capacity(0, 1);
+        degree_zero.means.push([4.0, 0.0, 0.0]);
+        degree_zero.log_scales.push([-2.0; 3]);
+        degree_zero.quats.push([1.0, 0.0, 0.0, 0.0]);
+        degree_zero.opacity_logits.push(0.0);
+        degree_zero.sh.extend([0.5; 3]);
+        let other =
+            StoredSet::upload(&device, &queue, &SceneInput::from(&degree_zero)).expect("stored");
+        assert!(copied.copy_from(&device, &queue, 120, &other).is_err());
+        assert_eq!(copied.len(), 150);
     }
 }

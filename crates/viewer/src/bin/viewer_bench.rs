@@ -1,10 +1,21 @@
-//! Frame time of the viewer's render path (the window's path without the window): with
-//! the scene resident on the GPU, draw a frame into a texture (still), or first upload the
-//! next timestamp's dynamic set, decoded ahead on the stream's worker thread (playing).
+//! Frame time of the viewer's render path (the window's path without the window), with
+//! the scene resident on the GPU:
+//! - *still*: the camera moves, the time does not; a frame drawn into a texture;
+//! - *playing*: the time advances every frame as well, with every timestamp's dynamic set
+//!   kept on the GPU (copied into place on the GPU); measured interleaved with *still*,
+//!   frame by frame at the same camera poses, so their ratio is taken side by side;
+//! - *streamed*: playing with the dynamic sets decoded ahead on the stream's worker thread
+//!   and uploaded when shown (the fallback when they do not fit the budget);
+//! - *upload*: the still frame through `Renderer::forward` (whole set uploaded, float
+//!   image read back: the training path);
+//! - a time change alone, the GPU waited for: the GPU-side copy of a stored set, and the
+//!   decode and the upload of a set that streaming does instead.
+//!
 //! Prints a table and writes JSON.
 //!
 //! `cargo run --release -p pano4d-viewer --bin viewer-bench -- [--quick] [--json PATH]
-//!  [--size WxH] [--sh-degree D] [--counts N,N,...]`
+//!  [--size WxH] [--sh-degree D] [--counts N,N,...] [--frames F] [--times T]
+//!  [--budget-mib M]`; `viewer-bench --adapter` prints the adapter it would use.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -12,6 +23,7 @@ use std::time::Instant;
 
 use pano4d_viewer::camera::ViewCamera;
 use pano4d_viewer::render::{FrameOptions, FrameRenderer};
+use pano4d_viewer::residency;
 use pano4d_viewer::scene::Scene;
 use pano4d_viewer::stream::DynamicStream;
 use pano4d_viewer::synthetic;
@@ -20,8 +32,6 @@ use splat_core::gaussians::SceneInput;
 use splat_core::ply4d;
 use splat_core::raster::{GpuContext, RenderSettings, Renderer};
 
-/// Timestamps in each benchmark scene; playback cycles through them.
-const TIMES: usize = 8;
 /// Share of the Gaussians that are dynamic (per timestamp).
 const DYNAMIC_FRACTION: f64 = 0.05;
 
@@ -30,19 +40,30 @@ struct Case {
     gaussians: usize,
     static_gaussians: usize,
     dynamic_gaussians: usize,
+    timestamps: usize,
     sh_degree: u32,
     width: u32,
     height: u32,
     frames: usize,
-    /// Camera moves, time fixed: draw into a texture with the scene resident.
+    /// How the dynamic sets reached the GPU in *playing* (`residency::Playback`).
+    playback: String,
+    /// Bytes of every timestamp's dynamic set on the GPU (0 when streamed).
+    resident_bytes: u64,
+    /// Loading the scene for playback: static set, and every dynamic set decoded and
+    /// stored when they fit.
+    load_ms: f64,
     still_ms_median: f64,
     still_ms_min: f64,
-    /// Time advances every frame: the dynamic set is decoded and uploaded as well.
     playing_ms_median: f64,
     playing_ms_min: f64,
-    /// The same still frames through `Renderer::forward` (the training path, and the
-    /// viewer's path before the scene was resident): the whole set uploaded every frame
-    /// and the float image read back.
+    /// Median over frames of playing / still at the same pose.
+    playing_over_still: f64,
+    /// A time change alone (the GPU waited for): copying a stored set on the GPU, decoding
+    /// a set, uploading a decoded set.
+    copy_ms_median: f64,
+    decode_ms_median: f64,
+    upload_set_ms_median: f64,
+    streamed_ms_median: f64,
     upload_ms_median: f64,
 }
 
@@ -59,6 +80,8 @@ struct Options {
     height: u32,
     sh_degree: u32,
     frames: usize,
+    times: usize,
+    budget: u64,
     json: PathBuf,
 }
 
@@ -69,6 +92,8 @@ fn parse() -> Result<Options, String> {
         height: 720,
         sh_degree: 3,
         frames: 5,
+        times: 8,
+        budget: residency::budget_from_env()?,
         json: PathBuf::from("bench/out/viewer.json"),
     };
     let mut args = std::env::args().skip(1);
@@ -82,6 +107,11 @@ fn parse() -> Result<Options, String> {
             "--json" => options.json = PathBuf::from(value()?),
             "--frames" => {
                 options.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?
+            }
+            "--times" => options.times = value()?.parse().map_err(|e| format!("--times: {e}"))?,
+            "--budget-mib" => {
+                let mib: u64 = value()?.parse().map_err(|e| format!("--budget-mib: {e}"))?;
+                options.budget = mib << 20;
             }
             "--sh-degree" => {
                 options.sh_degree = value()?.parse().map_err(|e| format!("--sh-degree: {e}"))?
@@ -102,8 +132,8 @@ fn parse() -> Result<Options, String> {
             other => return Err(format!("unknown argument {other}")),
         }
     }
-    if options.sh_degree > 3 || options.frames == 0 {
-        return Err("--sh-degree must be 0..=3 and --frames positive".into());
+    if options.sh_degree > 3 || options.frames == 0 || options.times < 2 {
+        return Err("--sh-degree must be 0..=3, --frames positive and --times at least 2".into());
     }
     Ok(options)
 }
@@ -113,79 +143,129 @@ fn median(values: &mut [f64]) -> f64 {
     values[values.len() / 2]
 }
 
+fn min(values: &[f64]) -> f64 {
+    values.iter().copied().fold(f64::INFINITY, f64::min)
+}
+
+/// Milliseconds `f` takes.
+fn timed(f: impl FnOnce() -> Result<(), String>) -> Result<f64, String> {
+    let start = Instant::now();
+    f()?;
+    Ok(start.elapsed().as_secs_f64() * 1e3)
+}
+
 fn run_case(
-    renderer: &mut FrameRenderer,
+    resident: &mut FrameRenderer,
+    streamed: &mut FrameRenderer,
     baseline: &mut Renderer,
     count: usize,
     options: &Options,
 ) -> Result<Case, String> {
+    let (width, height, times) = (options.width, options.height, options.times);
     let dynamic = ((count as f64 * DYNAMIC_FRACTION) as usize).max(1);
     let statics = count - dynamic;
-    let generated = synthetic::scene(statics, dynamic, TIMES, options.sh_degree, 42);
+    let generated = synthetic::scene(statics, dynamic, times, options.sh_degree, 42);
     let dir = std::env::temp_dir().join(format!("pano4d-viewer-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
     let path = dir.join(format!("scene-{count}.ply4d"));
     ply4d::write(&path, &generated).map_err(|e| e.to_string())?;
     drop(generated);
-    let scene = Scene::open(&path)?;
-    renderer.load_scene(&scene);
+    let scene = Arc::new(Scene::open(&path)?);
+    let mut playback = None;
+    let load_ms = timed(|| {
+        playback = Some(resident.load_scene_resident(&scene, options.budget).clone());
+        resident.show_time(&scene, 0)
+    })?;
+    let playback = playback.expect("set by the load");
+    streamed.load_scene(&scene);
     let frame_options = FrameOptions::default();
-    let mut camera = ViewCamera::panorama_viewpoint(&scene.extent);
     // Frames are drawn into a texture, as in the window (no read-back).
-    let target = renderer.create_target(options.width, options.height);
+    let target = resident.create_target(width, height);
+    let streamed_target = streamed.create_target(width, height);
+    let start_pose = ViewCamera::panorama_viewpoint(&scene.extent);
+    let poses: Vec<_> = (0..options.frames)
+        .scan(start_pose, |camera, _| {
+            camera.drag(15.0, 0.0);
+            Some(camera.to_camera(width, height))
+        })
+        .collect();
     // Warm-up: pipelines, buffer growth.
-    renderer.show_time(&scene, 0)?;
-    renderer.draw(
-        &camera.to_camera(options.width, options.height),
+    resident.draw(
+        &start_pose.to_camera(width, height),
         &frame_options,
         &target,
     )?;
 
-    let mut still = Vec::new();
-    for _ in 0..options.frames {
-        camera.drag(15.0, 0.0);
-        let start = Instant::now();
-        renderer.draw(
-            &camera.to_camera(options.width, options.height),
-            &frame_options,
-            &target,
-        )?;
-        still.push(start.elapsed().as_secs_f64() * 1e3);
+    // Playing and still, interleaved at the same poses: playing shows the next timestamp
+    // and draws; still draws the same pose again at that timestamp.
+    let (mut still, mut playing, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+    for (frame, camera) in poses.iter().enumerate() {
+        let t = (frame + 1) % times;
+        let play = timed(|| {
+            resident.show_time(&scene, t)?;
+            resident.draw(camera, &frame_options, &target)
+        })?;
+        let draw = timed(|| resident.draw(camera, &frame_options, &target))?;
+        playing.push(play);
+        still.push(draw);
+        ratios.push(play / draw);
     }
+
+    // A time change by itself, the GPU waited for: the GPU-side copy of a stored set (the
+    // resident path), and the decode and the upload of a set (the streamed path).
+    let (mut copy, mut decode, mut upload_set) = (Vec::new(), Vec::new(), Vec::new());
+    streamed.show_time(&scene, 0)?;
+    for frame in 0..options.frames {
+        let t = (frame + 1) % times;
+        copy.push(timed(|| {
+            resident.show_time(&scene, t)?;
+            resident.wait()
+        })?);
+        let mut set = None;
+        decode.push(timed(|| {
+            set = Some(scene.dynamic_set(t)?);
+            Ok(())
+        })?);
+        let set = set.expect("decoded above");
+        upload_set.push(timed(|| {
+            streamed.show(&scene, t, &set)?;
+            streamed.wait()
+        })?);
+    }
+
+    // Streaming as the window does it when the sets do not fit: the next timestamp
+    // decodes while this one draws.
+    let mut stream = DynamicStream::new(Arc::clone(&scene));
+    streamed.show_time(&scene, 0)?;
+    streamed.draw(&poses[0], &frame_options, &streamed_target)?;
+    stream.prefetch(1);
+    let mut streaming = Vec::new();
+    for (frame, camera) in poses.iter().enumerate() {
+        let t = (frame + 1) % times;
+        streaming.push(timed(|| {
+            streamed.show(&scene, t, &stream.take(t)?)?;
+            stream.prefetch((t + 1) % times);
+            streamed.draw(camera, &frame_options, &streamed_target)
+        })?);
+    }
+    drop(stream);
+
     let mut whole = scene.static_set.clone();
     whole.extend_from(&scene.dynamic_set(0)?);
     let mut upload = Vec::new();
-    for _ in 0..options.frames {
-        camera.drag(15.0, 0.0);
-        let start = Instant::now();
-        baseline
-            .forward(
-                &SceneInput::from(&whole),
-                &camera.to_camera(options.width, options.height),
-                &RenderSettings::default(),
-            )
-            .map_err(|e| e.to_string())?;
-        upload.push(start.elapsed().as_secs_f64() * 1e3);
+    for camera in &poses {
+        upload.push(timed(|| {
+            baseline
+                .forward(
+                    &SceneInput::from(&whole),
+                    camera,
+                    &RenderSettings::default(),
+                )
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        })?);
     }
     drop(whole);
-    // Playback as the window does it: the next timestamp decodes while this one draws.
-    let scene = Arc::new(scene);
-    let mut stream = DynamicStream::new(Arc::clone(&scene));
-    stream.prefetch(1);
-    let mut playing = Vec::new();
-    for frame in 0..options.frames {
-        let t = (frame + 1) % TIMES;
-        let start = Instant::now();
-        renderer.show(&scene, t, &stream.take(t)?)?;
-        stream.prefetch((t + 1) % TIMES);
-        renderer.draw(
-            &camera.to_camera(options.width, options.height),
-            &frame_options,
-            &target,
-        )?;
-        playing.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    drop(stream);
     drop(scene);
     std::fs::remove_file(&path).map_err(|e| e.to_string())?;
     let _ = std::fs::remove_dir(&dir);
@@ -193,54 +273,95 @@ fn run_case(
         gaussians: count,
         static_gaussians: statics,
         dynamic_gaussians: dynamic,
+        timestamps: times,
         sh_degree: options.sh_degree,
-        width: options.width,
-        height: options.height,
+        width,
+        height,
         frames: options.frames,
-        still_ms_min: still.iter().copied().fold(f64::INFINITY, f64::min),
+        resident_bytes: match &playback {
+            residency::Playback::Resident { bytes } => *bytes,
+            residency::Playback::Streamed { .. } => 0,
+        },
+        playback: playback.describe(),
+        load_ms,
+        still_ms_min: min(&still),
         still_ms_median: median(&mut still),
-        playing_ms_min: playing.iter().copied().fold(f64::INFINITY, f64::min),
+        playing_ms_min: min(&playing),
         playing_ms_median: median(&mut playing),
+        playing_over_still: median(&mut ratios),
+        copy_ms_median: median(&mut copy),
+        decode_ms_median: median(&mut decode),
+        upload_set_ms_median: median(&mut upload_set),
+        streamed_ms_median: median(&mut streaming),
         upload_ms_median: median(&mut upload),
     })
 }
 
 fn run() -> Result<(), String> {
+    if std::env::args().nth(1).as_deref() == Some("--adapter") {
+        // What bench/gpu.sh checks before a GPU run: the adapter PANO4D_ADAPTER picks.
+        let adapter = FrameRenderer::headless()?.adapter().clone();
+        println!(
+            "{} ({}, {})",
+            adapter.name, adapter.backend, adapter.device_type
+        );
+        return Ok(());
+    }
     let options = parse()?;
-    let mut renderer = FrameRenderer::headless()?;
+    let mut resident = FrameRenderer::headless()?;
+    let mut streamed = FrameRenderer::headless()?;
     let mut baseline =
         Renderer::new(GpuContext::new().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
-    let adapter = renderer.adapter().clone();
+    let adapter = resident.adapter().clone();
     println!(
-        "viewer render path, {}x{}, SH degree {}, adapter {} ({})",
-        options.width, options.height, options.sh_degree, adapter.name, adapter.backend
+        "viewer render path, {}x{}, SH degree {}, {} timestamps, adapter {} ({})",
+        options.width,
+        options.height,
+        options.sh_degree,
+        options.times,
+        adapter.name,
+        adapter.backend
     );
     println!(
-        "{:>10} {:>10} {:>9} | {:>10} {:>7} | {:>10} {:>7} | {:>10} {:>8}",
+        "{:>10} {:>9} | {:>9} {:>7} | {:>10} {:>7} {:>6} | {:>11} | {:>9} | {:>8} {:>9}",
         "gaussians",
-        "static",
         "dynamic",
         "still ms",
         "fps",
         "playing ms",
         "fps",
+        "ratio",
+        "streamed ms",
         "upload ms",
-        "speed-up"
+        "load ms",
+        "resident"
     );
     let mut cases = Vec::new();
     for &count in &options.counts {
-        let case = run_case(&mut renderer, &mut baseline, count, &options)?;
+        let case = run_case(&mut resident, &mut streamed, &mut baseline, count, &options)?;
         println!(
-            "{:>10} {:>10} {:>9} | {:>10.1} {:>7.1} | {:>10.1} {:>7.1} | {:>10.1} {:>7.1}x",
+            "{:>10} {:>9} | {:>9.1} {:>7.1} | {:>10.1} {:>7.1} {:>5.3}x | {:>11.1} | {:>9.1} | \
+             {:>8.0} {:>8}M",
             case.gaussians,
-            case.static_gaussians,
             case.dynamic_gaussians,
             case.still_ms_median,
             1e3 / case.still_ms_median,
             case.playing_ms_median,
             1e3 / case.playing_ms_median,
+            case.playing_over_still,
+            case.streamed_ms_median,
             case.upload_ms_median,
-            case.upload_ms_median / case.still_ms_median
+            case.load_ms,
+            case.resident_bytes.div_ceil(1 << 20),
+        );
+        println!(
+            "{:>10} time change alone: copy {:.2} ms (resident) | decode {:.1} ms + upload \
+             {:.2} ms (streamed); playback {}",
+            "",
+            case.copy_ms_median,
+            case.decode_ms_median,
+            case.upload_set_ms_median,
+            case.playback
         );
         cases.push(case);
     }
