@@ -1,12 +1,19 @@
 //! The renderer's reusable GPU buffers: each grows to the largest size a call has asked
 //! of it and is kept for the next call, so a training loop allocates nothing per step.
 
+use super::kernels::{plan_buffer, SortPlan};
 use super::renderer::RenderParams;
 use super::resident::binding_limit;
 use super::RasterError;
 
+/// Words of the renderer's status buffer (tiles.wgsl, `plan_intersections`): frames that
+/// overflowed and the most intersections of any frame (both counting only the frames of
+/// `encode_frame`, and only growing), then the last frame's intersections and whether it
+/// was drawn (1) or overflowed (0).
+pub(crate) const STATUS_WORDS: usize = 4;
+
 /// Errors when `m` intersections of `bytes_each` exceed one storage binding.
-pub(super) fn check_intersections(
+pub(super) fn ensure_intersections_fit(
     device: &wgpu::Device,
     m: u32,
     bytes_each: u64,
@@ -44,11 +51,11 @@ impl GrowBuffer {
         if !big_enough {
             // Headroom so that slowly growing scenes do not reallocate every call, but none
             // past what one binding may hold: a buffer just under the limit must still bind.
-            let limit = binding_limit(device).max(bytes);
-            let size = (bytes + bytes / 4).min(limit);
+            let limit = (binding_limit(device) & !15).max(bytes);
+            let size = (bytes + bytes / 4).min(limit).next_multiple_of(16);
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
-                size: size.next_multiple_of(16),
+                size,
                 usage: self.usage,
                 mapped_at_creation: false,
             }));
@@ -67,14 +74,22 @@ pub(super) struct Buffers {
     pub(super) offsets: GrowBuffer,
     pub(super) sort_counts: GrowBuffer,
     pub(super) block_sums: GrowBuffer,
+    /// Sizes of the depth sort and the offsets' scan (from the host), and of the tile sort
+    /// and its ranges (from the GPU).
+    pub(super) depth_plan: SortPlan,
+    pub(super) offsets_plan: wgpu::Buffer,
+    pub(super) tile_plan: SortPlan,
+    pub(super) status: wgpu::Buffer,
+    /// The per-intersection arrays (tile id, Gaussian id), sized by
+    /// `Renderer::reserve_intersections`.
     pub(super) isect_keys: [GrowBuffer; 2],
-    pub(super) isect_slots: [GrowBuffer; 2],
-    pub(super) isect_gaussian: GrowBuffer,
+    pub(super) isect_gaussians: [GrowBuffer; 2],
     pub(super) ranges: GrowBuffer,
     pub(super) pixels: GrowBuffer,
     pub(super) pixel_state: GrowBuffer,
     pub(super) v_pixels: GrowBuffer,
-    pub(super) isect_grads: GrowBuffer,
+    /// Each Gaussian's ten 2D gradient sums (rasterize_backward.wgsl).
+    pub(super) gaussian_grads: GrowBuffer,
     pub(super) grads: GrowBuffer,
     pub(super) readback: GrowBuffer,
 }
@@ -98,14 +113,22 @@ impl Buffers {
             offsets: GrowBuffer::new("offsets", copy),
             sort_counts: GrowBuffer::new("sort counts", copy),
             block_sums: GrowBuffer::new("block sums", copy),
+            depth_plan: SortPlan::new(device, "depth sort plan"),
+            offsets_plan: plan_buffer(device, "offsets scan plan"),
+            tile_plan: SortPlan::new(device, "tile sort plan"),
+            status: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("render status"),
+                size: 4 * STATUS_WORDS as u64,
+                usage: wgpu::BufferUsages::STORAGE | copy,
+                mapped_at_creation: false,
+            }),
             isect_keys: pair("intersection keys"),
-            isect_slots: pair("intersection slots"),
-            isect_gaussian: GrowBuffer::new("intersection gaussian", copy),
+            isect_gaussians: pair("intersection gaussians"),
             ranges: GrowBuffer::new("tile ranges", copy),
             pixels: GrowBuffer::new("pixels", copy),
             pixel_state: GrowBuffer::new("pixel state", copy),
             v_pixels: GrowBuffer::new("pixel gradients", copy),
-            isect_grads: GrowBuffer::new("intersection gradients", copy),
+            gaussian_grads: GrowBuffer::new("gaussian 2d gradients", copy),
             grads: GrowBuffer::new("gradients", copy),
             readback: GrowBuffer {
                 label: "readback",

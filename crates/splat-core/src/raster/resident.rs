@@ -4,10 +4,11 @@
 use super::RasterError;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
 
-/// A Gaussian buffer in the shaders' SoA layout: sections of `stride` entries of which the
-/// first `len` are drawn.
+/// A Gaussian buffer in the shaders' SoA layout (`SceneInput::packed`'s, with sections of
+/// `stride` entries: means, log-scales, quaternions, opacity logits, SH) of which the first
+/// `len` are drawn.
 #[derive(Clone, Debug)]
-pub(crate) struct SceneBuffer {
+pub struct SceneBuffer {
     pub buffer: wgpu::Buffer,
     pub len: u32,
     pub stride: u32,
@@ -141,7 +142,7 @@ impl ResidentScene {
         Ok(())
     }
 
-    pub(crate) fn as_buffer(&self) -> SceneBuffer {
+    pub fn as_buffer(&self) -> SceneBuffer {
         SceneBuffer {
             buffer: self.buffer.clone(),
             len: self.len,

@@ -1,7 +1,7 @@
 //! GPU tests (they run on lavapipe in CI): the sort and scan against CPU versions, and
 //! renders of single Gaussians whose footprint is known in closed form.
 
-use super::kernels::{scratch_len, SortKernels};
+use super::kernels::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
 use super::{
     binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene,
 };
@@ -67,6 +67,8 @@ fn gpu_sort(
     let (counts_len, sums_len) = scratch_len(n);
     let counts = storage(&ctx.device, &vec![0; counts_len as usize]);
     let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
+    let plan = SortPlan::new(&ctx.device, "test sort plan");
+    plan.write(&ctx.queue, n);
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     let out = kernels.encode_sort(
         &ctx.device,
@@ -75,7 +77,7 @@ fn gpu_sort(
         [&v[0], &v[1]],
         &counts,
         &sums,
-        n,
+        &plan,
         bits,
     );
     ctx.queue.submit([encoder.finish()]);
@@ -118,8 +120,11 @@ fn scan_matches_a_cpu_prefix_sum() {
         let buf = storage(&ctx.device, &data);
         let (_, sums_len) = scratch_len(len as u32);
         let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
+        let plan = plan_buffer(&ctx.device, "test scan plan");
+        ctx.queue
+            .write_buffer(&plan, 0, bytemuck::cast_slice(&scan_plan(len as u32)));
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
-        kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, len as u32);
+        kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, &plan);
         ctx.queue.submit([encoder.finish()]);
         let got = read(&ctx, &buf, len);
         let expected: Vec<u32> = data
@@ -394,7 +399,12 @@ fn draw_checks_its_target() {
 
 #[test]
 fn subgroup_and_plain_gradient_sums_agree() {
-    let plain = GpuContext::without_subgroups().expect("adapter");
+    let plain = GpuContext::with_options(super::DeviceOptions {
+        subgroups: false,
+        float_atomics: false,
+        binding_limit: None,
+    })
+    .expect("adapter");
     assert!(!plain.device.features().contains(wgpu::Features::SUBGROUP));
     let fast = GpuContext::new().expect("adapter");
     let has_subgroups = fast.device.features().contains(wgpu::Features::SUBGROUP);
