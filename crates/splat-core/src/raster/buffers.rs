@@ -45,14 +45,16 @@ impl GrowBuffer {
     }
 
     pub(super) fn get(&mut self, device: &wgpu::Device, bytes: u64) -> &wgpu::Buffer {
-        // Runtime-sized arrays need at least one element bound, whatever n is.
-        let bytes = bytes.max(256).next_multiple_of(16);
+        // Runtime-sized arrays need at least one element bound, whatever n is; sizes are
+        // multiples of 4 (copies), not more, or one just under the limit would pass it.
+        let align = wgpu::COPY_BUFFER_ALIGNMENT;
+        let bytes = bytes.max(256).next_multiple_of(align);
         let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
         if !big_enough {
             // Headroom so that slowly growing scenes do not reallocate every call, but none
             // past what one binding may hold: a buffer just under the limit must still bind.
-            let limit = (binding_limit(device) & !15).max(bytes);
-            let size = (bytes + bytes / 4).min(limit).next_multiple_of(16);
+            let limit = (binding_limit(device) / align * align).max(bytes);
+            let size = (bytes + bytes / 4).next_multiple_of(align).min(limit);
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
                 size,

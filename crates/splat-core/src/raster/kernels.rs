@@ -108,7 +108,7 @@ const PLAN_BYTES: u64 = 32;
 
 /// The (x, y, 1) grid [`dispatch_linear`] uses for `groups` workgroups (common.wgsl's
 /// `dispatch_grid` computes the same on the GPU).
-fn grid(groups: u32) -> [u32; 3] {
+pub(crate) fn grid(groups: u32) -> [u32; 3] {
     if groups == 0 {
         return [0, 1, 1];
     }

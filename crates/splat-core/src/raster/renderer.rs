@@ -310,7 +310,8 @@ impl Renderer {
         settings: &RenderSettings,
         mut then: impl FnMut(&mut Self, &Frame) -> Result<Option<(wgpu::Buffer, u64)>, RasterError>,
     ) -> Result<(u32, Vec<u8>), RasterError> {
-        loop {
+        // Twice at most: the second frame has room for the first one's intersections.
+        for _ in 0..2 {
             let frame = self.encode_frame_for(scene.clone(), camera, settings, false)?;
             let read = then(self, &frame)?;
             let (status, data) = self.read_status_and(read)?;
@@ -321,6 +322,9 @@ impl Renderer {
             // Fails when even the largest buffers cannot hold them.
             self.reserve_intersections(count)?;
         }
+        Err(RasterError::Gpu(
+            "a frame overflowed its intersection buffers after they were sized for it".into(),
+        ))
     }
 
     /// Waits for the queue and reads the status buffer and, if given, `bytes` of a buffer,
@@ -344,7 +348,7 @@ impl Renderer {
                 encoder.copy_buffer_to_buffer(src, 0, &staging, status_bytes, *bytes);
             }
         }
-        self.ctx.queue.submit([encoder.finish()]);
+        self.submit(encoder)?;
         let mut data = self.read_mapped(&staging, status_bytes + data_bytes)?;
         let status: Vec<u32> = bytemuck::pod_collect_to_vec(&data[..status_bytes as usize]);
         data.drain(..status_bytes as usize);

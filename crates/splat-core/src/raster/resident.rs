@@ -73,11 +73,12 @@ impl ResidentScene {
             .filter(|&c| c < u32::MAX / 64)
             .ok_or_else(|| RasterError::InvalidInput(format!("too many Gaussians: {capacity}")))?;
         check_scene_fits(device, capacity, sh_coeffs)?;
-        // Runtime-sized arrays need at least one element bound, whatever the capacity.
+        // Runtime-sized arrays need at least one element bound, whatever the capacity
+        // (bytes_for is a multiple of 4, as copies need, so a scene under the limit fits).
         let bytes = Self::bytes_for(capacity, sh_coeffs).max(256);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("resident gaussians"),
-            size: bytes.next_multiple_of(16),
+            size: bytes,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
