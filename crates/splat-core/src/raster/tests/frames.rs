@@ -36,6 +36,16 @@ fn read_floats(renderer: &Renderer, src: &wgpu::Buffer, len: usize) -> Vec<f32> 
         .collect()
 }
 
+/// Two backwards of one frame differ only in the order their atomics add the tiles'
+/// totals (gradients.rs checks that against its exact bound); this checks plumbing, so
+/// loosely: to 1e-4 of each value, or of 0.01 for smaller ones.
+fn assert_same_up_to_tile_order(got: &[f32], want: &[f32]) {
+    assert_eq!(got.len(), want.len());
+    for (a, b) in got.iter().zip(want) {
+        assert!((a - b).abs() <= 1e-4 * b.abs().max(1e-2), "{a} vs {b}");
+    }
+}
+
 fn settings() -> RenderSettings {
     RenderSettings {
         background: [0.25, 0.5, 0.75],
@@ -138,10 +148,7 @@ fn forward_and_backward_encode_an_overflowed_frame_again() {
     let cam = camera(w, h);
     let large = random_set(500, 51);
     let input = SceneInput::from(&large);
-    let mut seed = 9u64;
-    let v_pixels: Vec<f32> = (0..5 * w * h)
-        .map(|_| random_u32(&mut seed) as f32 / u32::MAX as f32 - 0.5)
-        .collect();
+    let v_pixels = random_pixel_gradient(w, h, 9);
     let mut fresh = renderer_with_limit(None);
     let want = fresh.forward(&input, &cam, &settings()).expect("forward");
     let want_grads = fresh
@@ -165,10 +172,7 @@ fn forward_and_backward_encode_an_overflowed_frame_again() {
             let grads = renderer
                 .backward(&input, &cam, &settings(), &v_pixels)
                 .expect("backward");
-            // Equal up to the atomics' order across tiles (see gradients.rs for the bound).
-            for (a, b) in grads.means.iter().zip(&want_grads.means) {
-                assert!((a - b).abs() <= 1e-4 * b.abs().max(1e-2), "{a} vs {b}");
-            }
+            assert_same_up_to_tile_order(&grads.means, &want_grads.means);
         }
         // Those calls check their own frames: nothing is left for check_intersections.
         assert_eq!(renderer.check_intersections().expect("check").overflowed, 0);
@@ -184,10 +188,7 @@ fn the_device_side_calls_give_what_the_waiting_calls_give() {
     let cam = camera(w, h);
     let set = random_set(200, 61);
     let input = SceneInput::from(&set);
-    let mut seed = 5u64;
-    let v: Vec<f32> = (0..5 * w * h)
-        .map(|_| random_u32(&mut seed) as f32 / u32::MAX as f32 - 0.5)
-        .collect();
+    let v = random_pixel_gradient(w, h, 5);
     let (want_pixels, _) = renderer
         .forward(&input, &cam, &settings())
         .expect("forward");
@@ -219,9 +220,7 @@ fn the_device_side_calls_give_what_the_waiting_calls_give() {
     .flatten()
     .copied()
     .collect();
-    for (a, b) in got.iter().zip(&want_flat) {
-        assert!((a - b).abs() <= 1e-4 * b.abs().max(1e-2), "{a} vs {b}");
-    }
+    assert_same_up_to_tile_order(&got, &want_flat);
     // A gradient buffer too small for the scene is refused, not overrun.
     let short = floats(&renderer, &[0.0; 64]);
     assert!(matches!(

@@ -114,7 +114,7 @@ fn every_path_adds_each_tiles_total_to_its_gaussian() {
             let y = ty * 16 + random_u32(&mut seed) % 16;
             let pixel = (y * w + x) as usize;
             for c in 0..5 {
-                v_full[5 * pixel + c] = random_u32(&mut seed) as f32 / u32::MAX as f32 - 0.5;
+                v_full[5 * pixel + c] = random_centred(&mut seed);
             }
             tile_pixels.push(pixel);
         }

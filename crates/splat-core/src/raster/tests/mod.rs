@@ -59,6 +59,19 @@ fn random_u32(seed: &mut u64) -> u32 {
     (*seed >> 32) as u32
 }
 
+/// Uniform in [-0.5, 0.5).
+fn random_centred(seed: &mut u64) -> f32 {
+    random_u32(seed) as f32 / u32::MAX as f32 - 0.5
+}
+
+/// A random pixel gradient for a `width`×`height` frame (H·W·5 values).
+fn random_pixel_gradient(width: u32, height: u32, seed: u64) -> Vec<f32> {
+    let mut seed = seed;
+    (0..5 * width * height)
+        .map(|_| random_centred(&mut seed))
+        .collect()
+}
+
 fn gpu_sort(
     ctx: &GpuContext,
     kernels: &SortKernels,
