@@ -1,9 +1,8 @@
 //! The backward pass: gradients of a loss w.r.t. the Gaussians, given its gradient w.r.t.
 //! the forward's output (docs/rasterizer.md, "Backward").
 
-use super::frame::Frame;
 use super::kernels::{bind_group, div_ceil, run_linear};
-use super::renderer::{RenderSettings, Renderer, PIXEL_CHANNELS};
+use super::renderer::{Frame, RenderSettings, Renderer, PIXEL_CHANNELS};
 use super::RasterError;
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
@@ -81,7 +80,7 @@ impl Renderer {
 
     /// Encodes and submits the backward of `frame` (the last [`Self::encode_frame`]):
     /// `v_pixels` holds the loss's gradient w.r.t. the forward's H·W·5 output (the layout
-    /// of [`Frame::pixels`]), and `grads` receives the gradients in [`Gradients`]' order as
+    /// of [`Renderer::frame_pixels`]), and `grads` receives the gradients in [`Gradients`]' order as
     /// one SoA buffer of `BASE_FLOATS · n + 3 k n` floats (sections of n, whatever the
     /// scene's stride). Nothing is read back and nothing waits: a training loop chains this
     /// with its optimiser on the device. Gradients are summed with atomics, so their float

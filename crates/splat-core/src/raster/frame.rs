@@ -9,8 +9,8 @@
 use super::buffers::{ensure_intersections_fit, GrowBuffer, STATUS_WORDS};
 use super::kernels::{bind_group, div_ceil, run_linear, scan_plan, scratch_len};
 use super::renderer::{
-    render_params, validate_camera, validate_settings, RenderParams, RenderSettings, Renderer,
-    PIXEL_CHANNELS, PROJECTED_FLOATS,
+    render_params, validate_camera, validate_settings, Frame, RenderParams, RenderSettings,
+    Renderer, PIXEL_CHANNELS, PROJECTED_FLOATS,
 };
 use super::resident::{binding_limit, SceneBuffer};
 use super::RasterError;
@@ -21,47 +21,6 @@ const RANGES_GROUPS_OFFSET: u64 = 20;
 /// Index of the status word that says whether the last frame was drawn (1) or overflowed
 /// its intersection buffers and drew only the background (0).
 pub const STATUS_DRAWN: usize = 3;
-
-/// One frame's results on the GPU, from [`Renderer::encode_frame`]: the forward's pixels
-/// and what its backward needs. The buffers are the renderer's own: the next
-/// `encode_frame` on the same renderer overwrites them.
-pub struct Frame {
-    pub(super) scene: SceneBuffer,
-    pub(super) params: RenderParams,
-    pub(super) projected: wgpu::Buffer,
-    pub(super) tile_counts: wgpu::Buffer,
-    /// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
-    pub(super) sorted_gaussians: wgpu::Buffer,
-    pub(super) ranges: wgpu::Buffer,
-    pub(super) pixel_state: wgpu::Buffer,
-    pixels: wgpu::Buffer,
-    status: wgpu::Buffer,
-}
-
-impl Frame {
-    /// The forward's output: per pixel, row-major, `PIXEL_CHANNELS` f32 (r, g, b with the
-    /// background, alpha, Σ z·α·T).
-    pub fn pixels(&self) -> &wgpu::Buffer {
-        &self.pixels
-    }
-
-    /// `STATUS_WORDS` u32; word [`STATUS_DRAWN`] is 1 if this frame was drawn and 0 if it
-    /// overflowed its intersection buffers (it then shows only the background and its
-    /// backward gives zero gradients): a training loop's optimiser can skip that step on
-    /// the device by reading it. Valid until the next frame.
-    pub fn status(&self) -> &wgpu::Buffer {
-        &self.status
-    }
-
-    /// (width, height) in pixels.
-    pub fn size(&self) -> (u32, u32) {
-        (self.params.width, self.params.height)
-    }
-
-    pub fn num_gaussians(&self) -> u32 {
-        self.params.num_gaussians
-    }
-}
 
 /// What [`Renderer::check_intersections`] found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -85,7 +44,7 @@ impl Renderer {
     /// except on a renderer whose intersection buffers no frame has sized yet: that first
     /// frame waits once for its intersection count (call
     /// [`Self::reserve_intersections`] first to avoid even that). The frame may overflow
-    /// (see [`Frame::status`]); [`Self::check_intersections`] counts such frames and makes
+    /// (see [`Self::frame_status`]); [`Self::check_intersections`] counts such frames and makes
     /// room. Chain [`Self::encode_backward`] on the returned frame before the next
     /// `encode_frame`.
     pub fn encode_frame(
@@ -318,7 +277,6 @@ impl Renderer {
             ranges,
             pixel_state,
             pixels: out_pixels,
-            status: b.status.clone(),
         }
     }
 
@@ -342,6 +300,24 @@ impl Renderer {
             .expect("four buffers");
         self.intersection_capacity = u32::try_from(room).unwrap_or(u32::MAX);
         Ok(())
+    }
+
+    /// The buffer the last [`Self::encode_frame`] left the forward's output in: per pixel,
+    /// row-major, `PIXEL_CHANNELS` f32 (r, g, b with the background, alpha, Σ z·α·T).
+    pub fn frame_pixels(&self) -> &wgpu::Buffer {
+        self.buffers
+            .pixels
+            .buffer
+            .as_ref()
+            .expect("allocated by encode_frame")
+    }
+
+    /// The status of the last [`Self::encode_frame`]: `STATUS_WORDS` u32, of which word
+    /// [`STATUS_DRAWN`] is 1 if the frame was drawn and 0 if it overflowed its intersection
+    /// buffers (it then shows only the background and its backward gives zero gradients): a
+    /// training loop's optimiser can skip that step on the device by reading it.
+    pub fn frame_status(&self) -> &wgpu::Buffer {
+        &self.buffers.status
     }
 
     /// Tile intersections a frame has room for (0 before the first frame).

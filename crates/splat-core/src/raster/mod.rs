@@ -16,7 +16,7 @@ mod backward;
 mod buffers;
 pub mod context;
 mod frame;
-mod kernels;
+pub(crate) mod kernels;
 pub mod renderer;
 mod resident;
 #[cfg(test)]
@@ -24,8 +24,8 @@ mod tests;
 
 pub use backward::Gradients;
 pub use context::{AdapterSummary, DeviceOptions, GpuContext};
-pub use frame::{Frame, IntersectionCheck, STATUS_DRAWN};
-pub use renderer::{target_texture, RenderSettings, Renderer, TARGET_FORMAT};
+pub use frame::{IntersectionCheck, STATUS_DRAWN};
+pub use renderer::{target_texture, Frame, RenderSettings, Renderer, TARGET_FORMAT};
 pub use resident::{binding_limit, ResidentScene, SceneBuffer};
 
 /// Errors of the rasteriser; the Python binding turns them into exceptions.

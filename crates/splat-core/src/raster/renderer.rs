@@ -3,7 +3,6 @@
 
 use super::buffers::{Buffers, STATUS_WORDS};
 use super::context::GpuContext;
-use super::frame::Frame;
 use super::kernels::{compile, div_ceil, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL};
 use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
@@ -179,6 +178,33 @@ pub(super) fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     Ok(())
 }
 
+/// One frame's results on the GPU, from [`Renderer::encode_frame`] (the forward's output
+/// is at [`Renderer::frame_pixels`], its status at [`Renderer::frame_status`]): what its
+/// backward needs. The buffers are the renderer's own: the next `encode_frame` on the same
+/// renderer overwrites them.
+pub struct Frame {
+    pub(super) scene: SceneBuffer,
+    pub(super) params: RenderParams,
+    pub(super) projected: wgpu::Buffer,
+    pub(super) tile_counts: wgpu::Buffer,
+    /// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
+    pub(super) sorted_gaussians: wgpu::Buffer,
+    pub(super) ranges: wgpu::Buffer,
+    pub(super) pixel_state: wgpu::Buffer,
+    pub(super) pixels: wgpu::Buffer,
+}
+
+impl Frame {
+    /// (width, height) in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.params.width, self.params.height)
+    }
+
+    pub fn num_gaussians(&self) -> u32 {
+        self.params.num_gaussians
+    }
+}
+
 /// Compiled pipelines and reusable buffers on one device. Not thread-safe by itself:
 /// callers serialise access (the Python binding keeps one behind a mutex).
 pub struct Renderer {
@@ -200,7 +226,7 @@ pub struct Renderer {
     pub(super) overflows_seen: u32,
 }
 
-pub(super) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
+pub(crate) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
     match pollster::block_on(scope.pop()) {
         Some(e) => Err(RasterError::Gpu(e.to_string())),
         None => Ok(()),
@@ -391,7 +417,7 @@ impl Renderer {
         let scene = self.upload(scene)?;
         let bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
         let (count, data) = self.render_and_read(&scene, camera, settings, |_, frame| {
-            Ok(Some((frame.pixels().clone(), bytes)))
+            Ok(Some((frame.pixels.clone(), bytes)))
         })?;
         Ok((bytemuck::pod_collect_to_vec(&data), count))
     }
@@ -444,7 +470,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: frame.pixels().as_entire_binding(),
+                    resource: frame.pixels.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,

@@ -79,9 +79,9 @@ fn a_frame_that_overflows_draws_nothing_and_is_counted_until_there_is_room() {
     let frame = renderer
         .encode_frame(scene, &cam, &settings())
         .expect("frame");
-    let status = read(&renderer.ctx, frame.status(), 4);
+    let status = read(&renderer.ctx, renderer.frame_status(), 4);
     assert_eq!((status[2], status[STATUS_DRAWN]), (count, 0));
-    let pixels = read_floats(&renderer, frame.pixels(), 5 * (w * h) as usize);
+    let pixels = read_floats(&renderer, renderer.frame_pixels(), 5 * (w * h) as usize);
     assert!(pixels.chunks(5).all(|p| p == [0.25, 0.5, 0.75, 0.0, 0.0]));
     let v_pixels = floats(&renderer, &vec![1.0; 5 * (w * h) as usize]);
     let grads = floats(&renderer, &vec![f32::NAN; 23 * large.len()]);
@@ -96,12 +96,15 @@ fn a_frame_that_overflows_draws_nothing_and_is_counted_until_there_is_room() {
     assert_eq!((check.overflowed, check.max_intersections), (1, count));
     assert!(check.capacity >= count + count / 4, "{check:?}");
     let scene = renderer.upload(&SceneInput::from(&large)).expect("upload");
-    let frame = renderer
+    renderer
         .encode_frame(scene, &cam, &settings())
         .expect("frame");
-    assert_eq!(read(&renderer.ctx, frame.status(), 4)[STATUS_DRAWN], 1);
     assert_eq!(
-        read_floats(&renderer, frame.pixels(), want.len()),
+        read(&renderer.ctx, renderer.frame_status(), 4)[STATUS_DRAWN],
+        1
+    );
+    assert_eq!(
+        read_floats(&renderer, renderer.frame_pixels(), want.len()),
         want,
         "the frame after the check"
     );
@@ -122,10 +125,10 @@ fn the_gpu_sizes_the_tile_sort_as_the_host_would() {
             *s += grow;
         }
         let scene = renderer.upload(&SceneInput::from(&set)).expect("upload");
-        let frame = renderer
+        renderer
             .encode_frame(scene, &cam, &settings())
             .expect("frame");
-        let m = read(&renderer.ctx, frame.status(), 4)[2];
+        let m = read(&renderer.ctx, renderer.frame_status(), 4)[2];
         let (sort, scan) = sort_plans(m);
         let plan = &renderer.buffers.tile_plan;
         let words = read(&renderer.ctx, &plan.sort, 8);
@@ -201,7 +204,7 @@ fn the_device_side_calls_give_what_the_waiting_calls_give() {
         .expect("frame");
     assert_eq!(frame.size(), (w, h));
     assert_eq!(frame.num_gaussians(), 200);
-    let pixels = read_floats(&renderer, frame.pixels(), want_pixels.len());
+    let pixels = read_floats(&renderer, renderer.frame_pixels(), want_pixels.len());
     assert_eq!(pixels, want_pixels);
     let v_buf = floats(&renderer, &v);
     let grads = floats(&renderer, &vec![0.0; 23 * set.len()]);
