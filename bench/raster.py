@@ -6,10 +6,12 @@
         dense torch reference costs O(pixels × Gaussians); where that would take minutes
         it is timed on a fraction of the Gaussians and scaled linearly (marked
         "extrapolated"), or skipped beyond that.
-    python bench/raster.py --presets [--baseline DIR] [--repeats 2]
+    python bench/raster.py --presets [--baseline DIR] [--repeats 2] [--rounds 1]
+        [--only draft balanced]
         forward+backward time per training step (through pano4d.render, as the torch
         training path runs it) at the draft, balanced and max presets' view sizes and SH
-        degrees (bench/out/raster_presets.json).
+        degrees, each round alternating this checkout and the baseline
+        (bench/out/raster_presets.json).
     python bench/raster.py --limits [--baseline DIR]
         the largest scenes whose forward+backward runs within the adapter's binding limits
         at 1024² (the max preset's views) and 1920×1080 (bench/out/raster_limits.json).
@@ -43,8 +45,10 @@ TORCH_EXTRAPOLATE_LIMIT = 3e11
 # balanced at its start (98k) and near its cap (1M, less on an adapter whose binding does
 # not hold that many at SH 2); max at its start (388k).
 PRESET_SCENES = {"draft": [85_000], "balanced": [98_000, 800_000], "max": [388_000]}
-LIMIT_SIZES = [(1024, 1024), (1920, 1080)]
-LIMIT_COUNTS = [250_000, 500_000, 1_000_000, 2_000_000, 2_300_000]
+# Counts around the previous path's limit (3.3·10⁶ intersections on lavapipe) and the
+# current one's (33.5·10⁶) for this scene generator, per image size.
+LIMIT_COUNTS = {(1024, 1024): [25_000, 50_000, 500_000, 1_000_000, 1_200_000],
+                (1920, 1080): [10_000, 20_000, 200_000, 300_000]}
 
 
 def scene(n: int, sh_degree: int = 3, seed: int = 0):
@@ -181,16 +185,19 @@ def presets(args: argparse.Namespace) -> None:
         {"preset": name, "n": n, "sh_degree": int(PRESETS[name]["sh_degree"]),
          "width": int(PRESETS[name]["view_size"]), "height": int(PRESETS[name]["view_size"]),
          "repeats": args.repeats, "warm_up": True}
-        for name, counts in PRESET_SCENES.items() for n in counts
+        for name, counts in PRESET_SCENES.items() if name in args.only for n in counts
     ]
-    rows = side_by_side(jobs, args.baseline, "preset")
+    rows = []
+    for round_ in range(args.rounds):
+        rows += [{**row, "round": round_} for row in side_by_side(jobs, args.baseline, "preset")]
     print(f"wrote {write_json('raster_presets.json', {'rows': rows})}")
 
 
 def limits(args: argparse.Namespace) -> None:
     # One timed call each (no warm-up): these scenes are about what fits, not speed.
     jobs = [{"size": f"{w}x{h}", "n": n, "sh_degree": 0, "width": w, "height": h,
-             "repeats": 1, "warm_up": False} for w, h in LIMIT_SIZES for n in LIMIT_COUNTS]
+             "repeats": 1, "warm_up": False}
+            for (w, h), counts in LIMIT_COUNTS.items() for n in counts]
     rows = side_by_side(jobs, args.baseline, "size")
     print(f"wrote {write_json('raster_limits.json', {'rows': rows})}")
 
@@ -265,6 +272,9 @@ def main() -> None:
                       help="the largest scenes that fit the binding limits")
     parser.add_argument("--quick", action="store_true", help="10^4 and 10^5 at 512² only")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=1, help="--presets: times to run each")
+    parser.add_argument("--only", nargs="+", choices=list(PRESET_SCENES),
+                        default=list(PRESET_SCENES), help="--presets: these presets only")
     parser.add_argument("--baseline", type=Path, default=None,
                         help="a checkout (with its extension built) to measure side by side")
     args = parser.parse_args()
