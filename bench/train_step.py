@@ -20,8 +20,9 @@ Time per step is the mean of ``--steps`` steps after one warm-up step (the resid
 steps are queued without waiting; the timing ends when the last one has finished).
 Bytes per step are what crosses between host and device: for the resident loop the session's
 own counter (``TrainSession.traffic``), for today's path every array passed to and returned
-by the rasteriser's bindings; the renderer's small per-frame uniforms and its intersection
-count come on top of both (see RESULTS.md).
+by the rasteriser's bindings; the renderer's small per-frame uniforms come on top of both
+(see RESULTS.md). The resident loop's intersection counts stay on the device (frames are
+sized on the GPU); its frame check rides with the loss read every 10 steps.
 
 The semantic loss (optional DINOv2) is timed on the resident loop as well, with L_sem on every
 step: each such step reads the render and the moved render back, runs the feature model in

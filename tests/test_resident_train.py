@@ -319,9 +319,13 @@ def test_resident_trainer_follows_the_torch_trainer_for_k_steps() -> None:
         assert float((a - b).abs().max()) <= 1e-2 * STEPS * lr[name], name
 
 
-def test_resident_trainer_resumes_exactly_across_a_densification() -> None:
+def test_resident_trainer_resumes_across_a_densification() -> None:
     """state_dict after 7 of 12 steps, a new trainer, load_state_dict, the rest: the same
-    Gaussians bit for bit as 12 steps in one go (densification at steps 4 and 8)."""
+    Gaussians as 12 steps in one go (densification at steps 4 and 8), up to the backward's
+    float-atomic summation order (docs/rasterizer.md, "Determinism"): three uninterrupted
+    runs differ by at most 8.6e-6 in any element on lavapipe, so the bound is 1e-4, while a
+    lost piece of state (moments, step count, statistics, generator) moves elements by
+    learning-rate steps (≥ 5e-4)."""
     g, views = _problem()
     knobs = Knobs(iterations=12, lambda_geo=0.05, densify=True, densify_every=4,
                   max_gaussians=len(g) + 10)  # fmt: skip
@@ -335,8 +339,9 @@ def test_resident_trainer_resumes_exactly_across_a_densification() -> None:
     assert resumed.step == 7
     got = resumed.run()
     assert len(got) > len(g)
+    assert len(got) == len(expected)
     for name, tensor in got.tensors().items():
-        assert torch.equal(tensor, expected.tensors()[name]), name
+        assert float((tensor - expected.tensors()[name]).abs().max()) <= 1e-4, name
     torch_state = GaussianTrainer(g, views, knobs, _render, seed=3).state_dict()
     with pytest.raises(ValueError, match="torch trainer"):
         resumed.load_state_dict(torch_state)
@@ -450,8 +455,9 @@ def test_semantic_loss_on_the_resident_path_follows_the_torch_trainer(tmp_path: 
 
 
 def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
-    """Between checkpoints a step uploads only Adam's per-step constants, and the loss is
-    read back at most once every 10 steps: the session's traffic counter says so."""
+    """Between checkpoints a step uploads only Adam's per-step constants, and the loss (7
+    floats) and the renderer's frame check (4 words) are read back at most once every 10
+    steps: the session's traffic counter says so."""
     g, views = _problem()
     trainer = ResidentTrainer(g, views, Knobs(iterations=100, lambda_geo=0.05), _render)
     start = trainer._session.traffic()
@@ -460,7 +466,7 @@ def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
         trainer.train_step()
     uploaded, read_back = (a - b for a, b in zip(trainer._session.traffic(), start, strict=True))
     assert 0 < uploaded <= 128 * steps
-    assert 0 < read_back <= 2 * 7 * 4  # two read-backs of the 7 loss parts
+    assert 0 < read_back <= 2 * (7 * 4 + 4 * 4)  # two loss reads, two frame checks
     assert math.isfinite(trainer.last_loss)
 
 

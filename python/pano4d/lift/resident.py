@@ -90,6 +90,7 @@ class ResidentTrainer(Trainer):
     """Optimises one set of Gaussians (optionally against a frozen context) on the GPU."""
 
     sem_every = 1  # steps between semantic-loss evaluations (each reads two renders back)
+    overflowed_frames = 0  # steps whose frame outgrew the intersection buffers (no gradient)
 
     def _start(self, gaussians: Gaussians) -> None:
         g = gaussians.detach()
@@ -120,6 +121,7 @@ class ResidentTrainer(Trainer):
             ),
             [float(v) for v in bg.reshape(-1)],
         )
+        self._session.reserve_frames()
 
     def _view_targets(self) -> list[tuple[Any, ...]]:
         v, k = self.views, self.knobs
@@ -158,6 +160,10 @@ class ResidentTrainer(Trainer):
         self.step += 1
         if sem or self.step % LOSS_EVERY == 0 or self.step >= k.iterations:
             self.last_loss = float(self._session.loss()[0]) + sem_loss
+            # Steps do not wait for their intersection counts: a frame that outgrew the
+            # renderer's room drew only the background (no gradient that step). Counted
+            # here, and the room grows before the next frames.
+            self.overflowed_frames += self._session.check_frames()[0]
         if densify_due(k, self.step):
             self.densify_and_prune()
         return self.last_loss
@@ -217,6 +223,7 @@ class ResidentTrainer(Trainer):
             None if grad_count is None else _flat(grad_count),
             adam_steps,
         )
+        self._session.reserve_frames()
 
     def result(self) -> Gaussians:
         return unpack(self._session.params(), len(self._session), self._sh_coeffs, self.device)

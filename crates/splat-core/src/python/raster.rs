@@ -151,17 +151,30 @@ fn render_backward<'py>(
     Ok(out)
 }
 
-/// The adapter the renderer uses: {name, backend, device_type, driver}.
+/// The adapter the renderer uses: {name, backend, device_type, driver} and which of the
+/// backward's paths it takes: {subgroups, float_atomics} ("yes" or "no").
 #[pyfunction]
 fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    let summary = py
-        .detach(|| with_renderer(|r| Ok(r.context().adapter.clone())))
+    let (summary, subgroups, float_atomics) = py
+        .detach(|| {
+            with_renderer(|r| {
+                let ctx = r.context();
+                Ok((
+                    ctx.adapter.clone(),
+                    ctx.has_subgroups(),
+                    ctx.has_float_atomics(),
+                ))
+            })
+        })
         .map_err(to_py)?;
+    let yes_no = |on: bool| if on { "yes" } else { "no" };
     let out = PyDict::new(py);
     out.set_item("name", summary.name)?;
     out.set_item("backend", summary.backend)?;
     out.set_item("device_type", summary.device_type)?;
     out.set_item("driver", summary.driver)?;
+    out.set_item("subgroups", yes_no(subgroups))?;
+    out.set_item("float_atomics", yes_no(float_atomics))?;
     Ok(out)
 }
 

@@ -231,6 +231,25 @@ impl PyTrainSession {
         py.detach(|| s.apply_gradients(g)).map_err(to_py)
     }
 
+    /// Sizes the renderer's intersection buffers for every view of the current scene (one
+    /// wait): at the start of a stage and after set_trained.
+    fn reserve_frames(&mut self, py: Python<'_>) -> PyResult<()> {
+        let s = &mut self.inner;
+        py.detach(|| with_renderer(|r| s.reserve_frames(r)))
+            .map_err(to_py)
+    }
+
+    /// (frames that overflowed their intersection buffers since the last check, the
+    /// largest frame's intersections, the room from now on); grows the room when the
+    /// largest frame came near it. A 16-byte read-back: call it with the loss.
+    fn check_frames(&mut self, py: Python<'_>) -> PyResult<(u32, u32, u32)> {
+        let s = &mut self.inner;
+        let c = py
+            .detach(|| with_renderer(|r| s.check_frames(r)))
+            .map_err(to_py)?;
+        Ok((c.overflowed, c.max_intersections, c.capacity))
+    }
+
     /// The last step's loss parts: (L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
     /// weight, 1.0 if L_geo applied else 0.0).
     fn loss(&mut self, py: Python<'_>) -> PyResult<Vec<f32>> {

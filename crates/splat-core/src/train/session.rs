@@ -12,8 +12,10 @@ use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
 use super::losses::{LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS};
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
-use crate::raster::renderer::{pop_error, Frame, RenderSettings, Renderer, PIXEL_CHANNELS};
-use crate::raster::{binding_limit, RasterError, ResidentScene, SceneBuffer};
+use crate::raster::renderer::{
+    pop_error, read_mapped, submit_checked, Frame, RenderSettings, Renderer, PIXEL_CHANNELS,
+};
+use crate::raster::{binding_limit, IntersectionCheck, RasterError, ResidentScene, SceneBuffer};
 
 /// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
 /// L_geo) and the previous timestamp's render (h·w·3, for L_temporal).
@@ -36,7 +38,7 @@ pub struct TrainConfig {
 }
 
 /// Bytes moved between host and device by the session (the renderer's own per-frame
-/// uniforms and intersection count are not included: see [`TrainSession::traffic`]).
+/// uniforms are not included: see [`TrainSession::traffic`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Traffic {
     pub uploaded: u64,
@@ -287,9 +289,9 @@ impl TrainSession {
         Ok(())
     }
 
-    /// Host↔device bytes the session has moved so far. The renderer's own uploads of its
-    /// per-frame parameters and its intersection-count read-back come on top (a few
-    /// hundred bytes a frame, counted by the benchmark).
+    /// Host↔device bytes the session has moved so far, the frame checks of
+    /// [`Self::check_frames`] included. The renderer's own upload of its per-frame
+    /// parameters comes on top (its size is counted by the benchmark).
     pub fn traffic(&self) -> Traffic {
         self.traffic
     }
@@ -348,24 +350,8 @@ impl TrainSession {
             }
             at += bytes;
         }
-        self.queue.submit([encoder.finish()]);
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RasterError::Gpu(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| RasterError::Gpu(e.to_string()))?
-            .map_err(|e| RasterError::Gpu(e.to_string()))?;
-        let data: Vec<f32> = bytemuck::pod_collect_to_vec(
-            &slice
-                .get_mapped_range()
-                .map_err(|e| RasterError::Gpu(e.to_string()))?,
-        );
-        staging.unmap();
+        self.submit(encoder)?;
+        let data = bytemuck::pod_collect_to_vec(&read_mapped(&self.device, &staging, total)?);
         self.traffic.read_back += total;
         Ok(data)
     }
@@ -496,9 +482,7 @@ impl TrainSession {
     }
 
     fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        self.queue.submit([encoder.finish()]);
-        pop_error(scope)
+        submit_checked(&self.device, &self.queue, encoder)
     }
 
     fn view(&self, view: usize) -> Result<&View, RasterError> {
@@ -527,6 +511,33 @@ impl TrainSession {
             pixels,
         );
         self.submit(encoder)
+    }
+
+    /// Sizes the renderer's intersection buffers for every view of the current scene:
+    /// encodes each view's forward and reads the largest count once (one wait). Call it
+    /// where the loop waits anyway (at the start of a stage, after densification): steps
+    /// do not wait for their counts, and a frame with more intersections than room draws
+    /// only the background (docs/rasterizer.md, "Frames without a wait").
+    pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        for index in 0..self.views.len() {
+            let camera = self.views[index].camera;
+            renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        }
+        self.extra_frame = None;
+        self.check_frames(renderer).map(|_| ())
+    }
+
+    /// The renderer's check of the frames since the last one (16 bytes read back): how
+    /// many overflowed their intersection buffers (their step had no gradient but Adam's
+    /// moments still moved the parameters) and the room from now on, grown when the
+    /// largest frame came near it. Call it with the loss read-back.
+    pub fn check_frames(
+        &mut self,
+        renderer: &mut Renderer,
+    ) -> Result<IntersectionCheck, RasterError> {
+        let check = renderer.check_intersections()?;
+        self.traffic.read_back += std::mem::size_of::<[u32; 4]>() as u64;
+        Ok(check)
     }
 
     /// One training step on view `view`: forward, losses, backward, Adam.

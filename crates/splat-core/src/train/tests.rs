@@ -376,3 +376,71 @@ fn bad_inputs_are_refused_with_what_is_wrong() {
         Err(RasterError::InvalidInput(_))
     ));
 }
+
+#[test]
+fn reserved_frames_do_not_overflow_and_checks_count_overflows() {
+    // View 0 looks away from the cloud (almost no intersections), view 1 at it: the
+    // renderer's first frame alone would size its buffers for view 0.
+    let trained = cloud(400, 5);
+    let side = 64;
+    let t = targets(side);
+    let unit = unit(&trained);
+    let away = Camera::from_fov(
+        70.0,
+        side,
+        side,
+        DVec3::ZERO,
+        DVec3::new(-1.0, 0.0, 0.0),
+        DVec3::new(0.0, 0.0, 1.0),
+    );
+    let views: Vec<ViewTargets<'_>> = [away, camera(side)]
+        .into_iter()
+        .map(|camera| ViewTargets {
+            camera,
+            rgb: &t.rgb,
+            weight: &t.weight,
+            depth: None,
+            previous: None,
+            weight_sum: (side * side) as f32,
+        })
+        .collect();
+    let empty = GaussianSet::with_capacity(1, 0);
+    let start = |renderer: &Renderer| {
+        let input = TrainedInput {
+            gaussians: SceneInput::from(&trained),
+            unit: &unit,
+            exp_avg: None,
+            exp_avg_sq: None,
+            grad_accum: None,
+            grad_count: None,
+            adam_steps: 0,
+        };
+        TrainSession::new(renderer, SceneInput::from(&empty), input, &views, config())
+            .expect("session")
+    };
+    let steps = |s: &mut TrainSession, renderer: &mut Renderer| {
+        for _ in 0..3 {
+            s.step(renderer, 0).expect("step away");
+            s.step(renderer, 1).expect("step at the cloud");
+        }
+        s.check_frames(renderer).expect("check")
+    };
+
+    // Without the reservation the first frame at the cloud outgrows the room view 0 left
+    // (the check then makes room for the rest).
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let mut s = start(&renderer);
+    let check = steps(&mut s, &mut renderer);
+    assert!(check.overflowed >= 1, "{check:?}");
+
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let mut s = start(&renderer);
+    s.reserve_frames(&mut renderer).expect("reserve");
+    let check = steps(&mut s, &mut renderer);
+    assert_eq!(check.overflowed, 0, "{check:?}");
+    assert!(check.max_intersections > 1000, "{check:?}");
+    assert!(
+        s.state().expect("state").grad_count.contains(&3.0),
+        "view 1's steps had gradients"
+    );
+}
