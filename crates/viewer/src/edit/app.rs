@@ -273,6 +273,12 @@ impl EditorApp {
         (self.preview_job.is_some(), playing)
     }
 
+    /// The preview frame the view image last drawn shows (the clock moves on between a
+    /// frame being drawn and being looked at).
+    pub fn shown_preview_frame(&self) -> Option<usize> {
+        self.composed.and_then(|key| key.preview_frame)
+    }
+
     /// Whether the regions differ from the file's.
     pub fn unsaved(&self) -> bool {
         self.loaded
