@@ -115,23 +115,27 @@ fn session(
         previous: None,
         weight_sum: (side * side) as f32,
     };
-    let input = TrainedInput {
+    TrainSession::new(
+        renderer,
+        SceneInput::from(context),
+        fresh(trained, &unit),
+        &[view],
+        config(),
+    )
+    .expect("session")
+}
+
+/// `trained` with zero moments and statistics, before its first step.
+fn fresh<'a>(trained: &'a GaussianSet, unit: &'a [f32]) -> TrainedInput<'a> {
+    TrainedInput {
         gaussians: SceneInput::from(trained),
-        unit: &unit,
+        unit,
         exp_avg: None,
         exp_avg_sq: None,
         grad_accum: None,
         grad_count: None,
         adam_steps: 0,
-    };
-    TrainSession::new(
-        renderer,
-        SceneInput::from(context),
-        input,
-        &[view],
-        config(),
-    )
-    .expect("session")
+    }
 }
 
 #[test]
@@ -406,15 +410,7 @@ fn reserved_frames_do_not_overflow_and_checks_count_overflows() {
         .collect();
     let empty = GaussianSet::with_capacity(1, 0);
     let start = |renderer: &Renderer| {
-        let input = TrainedInput {
-            gaussians: SceneInput::from(&trained),
-            unit: &unit,
-            exp_avg: None,
-            exp_avg_sq: None,
-            grad_accum: None,
-            grad_count: None,
-            adam_steps: 0,
-        };
+        let input = fresh(&trained, &unit);
         TrainSession::new(renderer, SceneInput::from(&empty), input, &views, config())
             .expect("session")
     };
