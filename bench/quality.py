@@ -9,7 +9,8 @@ moving region, the latter next to the true video's). Prints a table and writes
 bench/out/quality.json.
 
     .venv/bin/python bench/quality.py [--presets draft balanced] [--width 1024] [--frames 4]
-        [--depth file|layout] [--backend wgpu|torch] [--json bench/out/quality.json]
+        [--depth file|layout] [--backend wgpu|torch] [--trainer resident|torch]
+        [--json bench/out/quality.json]
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from pano4d.config import load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.images import read_depth, read_image, read_mask
 from pano4d.lift.align import FrameAlignment, sphere_for_views
+from pano4d.lift.pipeline import trainer_for
 from pano4d.resample import equirect_to_perspective, sphere_to_equirect
 from pano4d.sphere import view_layout
 from pano4d.train import run_train
@@ -102,7 +104,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
         )
     cfg = cfg.model_copy(update=update)
     start = time.perf_counter()
-    metrics = run_train(cfg, progress=False, render_backend=args.backend)
+    metrics = run_train(cfg, progress=False, render_backend=args.backend, trainer=args.trainer)
     wall = time.perf_counter() - start
     scene = ply4d.read(output / "scene.ply4d")
     gt_depth = read_depth(root / "depth.exr")
@@ -112,6 +114,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
     views = metrics["novel_views"]["by_displacement"]
     return {
         "preset": preset,
+        "trainer": trainer_for(args.backend, args.trainer),
         "depth_backend": args.depth,
         "wall_s": wall,
         "timings_s": metrics["timings_s"],
@@ -136,6 +139,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--depth", choices=["file", "layout"], default="file")
     parser.add_argument("--backend", choices=["wgpu", "torch"], default="wgpu")
+    parser.add_argument("--trainer", choices=["resident", "torch"],
+                        help="default: resident with wgpu, torch with --backend torch")  # fmt: skip
     parser.add_argument("--json", type=Path, default=OUT / "quality.json")
     args = parser.parse_args()
 

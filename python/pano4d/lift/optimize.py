@@ -15,7 +15,9 @@ Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and one at
 
 Densify and prune (when enabled) run every ``densify_every`` steps between 20 % and 70 % of
 the iterations: prune near-transparent Gaussians, split those with the largest accumulated
-position gradient into two smaller ones, and keep the count within ``max_gaussians``.
+position gradient into two smaller ones, and keep the count within ``max_gaussians``
+(``split_and_prune``, shared with the resident trainer). Adam's moments move with their
+Gaussians: survivors keep theirs, split children start at zero, the step count goes on.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
 Adam moments, the view generator, the step), so a resumed run continues bit-for-bit.
 """
@@ -23,6 +25,7 @@ Adam moments, the view generator, the step), so a resumed run continues bit-for-
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -34,10 +37,12 @@ from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 
 LAMBDA_RGB = 1.0
+RGB_L1, RGB_SSIM = 0.8, 0.2  # L_rgb's mix
 SSIM_WINDOW = 11
 SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iterations, α)
 PRUNE_OPACITY = 0.005
 SPLIT_FACTOR = 1.6
+ADAM_EPS = 1e-15
 LEARNING_RATES = {
     "offsets": 1e-3,  # in units of each Gaussian's initial depth
     "log_scales": 5e-3,
@@ -112,6 +117,85 @@ def sem_alpha(step: int, iterations: int) -> float:
     return alpha
 
 
+def densify_due(knobs: Knobs, step: int) -> bool:
+    """Whether densification runs after ``step`` steps: every ``densify_every`` steps
+    between 20 % and 70 % of the iterations, when enabled."""
+    if not knobs.densify or knobs.densify_every <= 0:
+        return False
+    return (
+        0.2 * knobs.iterations <= step <= 0.7 * knobs.iterations
+        and step % knobs.densify_every == 0
+    )
+
+
+@dataclass
+class Densified:
+    """The Gaussians after one densify-and-prune, with where each row came from."""
+
+    gaussians: Gaussians
+    unit: torch.Tensor  # (M,) offset units, carried from the source Gaussian
+    source: torch.Tensor  # (M,) row of the Gaussian before, that each row comes from
+    child: torch.Tensor  # (M,) bool: one of the two children of a split
+
+    def carry(self, state: torch.Tensor) -> torch.Tensor:
+        """Per-Gaussian optimiser state (one row per Gaussian) moved with the Gaussians:
+        survivors keep theirs, split children start at zero (as 3DGS's densification)."""
+        rows = state[self.source]
+        child = self.child.reshape(-1, *([1] * (state.dim() - 1)))
+        return torch.where(child, torch.zeros_like(rows), rows)
+
+
+def split_and_prune(
+    g: Gaussians,
+    unit: torch.Tensor,
+    grad_accum: torch.Tensor,
+    grad_count: torch.Tensor,
+    max_gaussians: int,
+    generator: torch.Generator,
+) -> Densified:
+    """One densify-and-prune (both trainers call this): drop near-transparent Gaussians,
+    split those with the largest mean position gradient into two smaller jittered
+    children, and keep at most ``max_gaussians`` (the most opaque)."""
+    keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
+    mean_grad = grad_accum / grad_count.clamp(min=1)
+    room = max_gaussians - int(keep.sum())
+    split = torch.zeros_like(keep)
+    if room > 0:
+        candidates = keep & (mean_grad > 0)
+        count = min(room, int(candidates.sum()) // 10)
+        if count > 0:
+            score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
+            split[torch.topk(score, count).indices] = True
+    rows = torch.arange(len(g), device=g.device)
+    survivors = keep & ~split
+    parts, units, sources = [g[survivors]], [unit[survivors]], [rows[survivors]]
+    children = [torch.zeros(int(survivors.sum()), dtype=torch.bool, device=g.device)]
+    if split.any():
+        parent = g[split]
+        sigma = parent.log_scales.exp()
+        for _ in range(2):
+            jitter = torch.randn(parent.means.shape, generator=generator)
+            parts.append(
+                Gaussians(
+                    parent.means + jitter.to(g.device) * sigma * 0.5,
+                    parent.log_scales - math.log(SPLIT_FACTOR),
+                    parent.quats,
+                    parent.opacity_logits,
+                    parent.sh,
+                )
+            )
+            units.append(unit[split])
+            sources.append(rows[split])
+            children.append(torch.ones(len(parent), dtype=torch.bool, device=g.device))
+    merged = Gaussians.cat(parts)
+    merged_units, source, child = torch.cat(units), torch.cat(sources), torch.cat(children)
+    if len(merged) > max_gaussians:
+        top = torch.topk(merged.opacity_logits, max_gaussians).indices
+        merged, merged_units = merged[top], merged_units[top]
+        source, child = source[top], child[top]
+    return Densified(merged, merged_units, source, child)
+
+
 def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     """The same camera translated by ``offset`` (3,) in world space."""
     w2c = camera.world_to_cam.clone()
@@ -119,8 +203,10 @@ def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     return Camera(camera.K, w2c, camera.width, camera.height)
 
 
-class GaussianTrainer:
-    """Optimises one set of Gaussians (optionally against a frozen context)."""
+class Trainer(ABC):
+    """What both trainers share (``GaussianTrainer`` here, ``ResidentTrainer`` in
+    lift.resident): their inputs, the step count, the seeded generator that draws each
+    step's view, and the loop; a lifting stage can use either."""
 
     def __init__(
         self,
@@ -145,6 +231,47 @@ class GaussianTrainer:
         self.step = 0
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
+        self._start(gaussians)
+
+    @abstractmethod
+    def _start(self, gaussians: Gaussians) -> None:
+        """Sets up the optimisation of ``gaussians`` (called once by __init__)."""
+
+    def next_view(self) -> int:
+        """The view of the next step, drawn from the seeded generator."""
+        return int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+
+    @abstractmethod
+    def train_step(self) -> float:
+        """One step; returns the loss (the resident trainer's last one read back)."""
+
+    @abstractmethod
+    def result(self) -> Gaussians:
+        """The trained Gaussians."""
+
+    @abstractmethod
+    def densify_and_prune(self) -> None: ...
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def run(self, on_step: Callable[[Trainer], None] | None = None) -> Gaussians:
+        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
+        while self.step < self.knobs.iterations:
+            self.train_step()
+            if on_step is not None:
+                on_step(self)
+        return self.result()
+
+
+class GaussianTrainer(Trainer):
+    """Optimises one set of Gaussians (optionally against a frozen context) in torch."""
+
+    def _start(self, gaussians: Gaussians) -> None:
         self._set_parameters(gaussians)
 
     # --- parameters ------------------------------------------------------------------------
@@ -168,7 +295,7 @@ class GaussianTrainer:
             p.requires_grad_(True)
         self.optimiser = torch.optim.Adam(
             [{"params": [p], "lr": LEARNING_RATES[k], "name": k} for k, p in self.params.items()],
-            eps=1e-15,
+            eps=ADAM_EPS,
         )
         self.grad_accum = torch.zeros(len(g), device=self.device)
         self.grad_count = torch.zeros(len(g), device=self.device)
@@ -200,7 +327,7 @@ class GaussianTrainer:
         target, weight = v.targets[index], v.weights[index]
         wsum = weight.sum().clamp(min=1e-6)
         l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
-        loss = LAMBDA_RGB * (0.8 * l1 + 0.2 * ssim_loss(rgb, target, weight))
+        loss = LAMBDA_RGB * (RGB_L1 * l1 + RGB_SSIM * ssim_loss(rgb, target, weight))
         if k.lambda_temporal > 0 and v.previous is not None:
             temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum
             loss = loss + k.lambda_temporal * temporal
@@ -219,8 +346,7 @@ class GaussianTrainer:
         return loss
 
     def train_step(self) -> float:
-        index = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
-        loss = self.loss_at(index)
+        loss = self.loss_at(self.next_view())
         self.optimiser.zero_grad(set_to_none=True)
         loss.backward()
         grad = self.params["offsets"].grad
@@ -231,68 +357,33 @@ class GaussianTrainer:
         self.optimiser.step()
         self.step += 1
         self.last_loss = float(loss.detach())
-        if self._densify_due():
+        if densify_due(self.knobs, self.step):
             self.densify_and_prune()
         return self.last_loss
 
-    def run(
-        self,
-        on_step: Callable[[GaussianTrainer], None] | None = None,
-    ) -> Gaussians:
-        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
-        while self.step < self.knobs.iterations:
-            self.train_step()
-            if on_step is not None:
-                on_step(self)
-        return self.result()
-
     # --- densify and prune ------------------------------------------------------------------
-    def _densify_due(self) -> bool:
-        k = self.knobs
-        if not k.densify or k.densify_every <= 0:
-            return False
-        return (
-            0.2 * k.iterations <= self.step <= 0.7 * k.iterations
-            and self.step % k.densify_every == 0
-        )
-
     def densify_and_prune(self) -> None:
         with torch.no_grad():
-            g = self.result()
-            unit = self.unit
-            keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
-            mean_grad = self.grad_accum / self.grad_count.clamp(min=1)
-            room = self.knobs.max_gaussians - int(keep.sum())
-            split = torch.zeros_like(keep)
-            if room > 0:
-                candidates = keep & (mean_grad > 0)
-                count = min(room, int(candidates.sum()) // 10)
-                if count > 0:
-                    score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
-                    split[torch.topk(score, count).indices] = True
-            parts = [g[keep & ~split]]
-            units = [unit[keep & ~split]]
-            if split.any():
-                parent = g[split]
-                sigma = parent.log_scales.exp()
-                for _ in range(2):
-                    jitter = torch.randn(parent.means.shape, generator=self.generator)
-                    parts.append(
-                        Gaussians(
-                            parent.means + jitter.to(self.device) * sigma * 0.5,
-                            parent.log_scales - math.log(SPLIT_FACTOR),
-                            parent.quats,
-                            parent.opacity_logits,
-                            parent.sh,
-                        )
-                    )
-                    units.append(unit[split])
-            merged, merged_units = Gaussians.cat(parts), torch.cat(units)
-            if len(merged) > self.knobs.max_gaussians:
-                top = torch.topk(merged.opacity_logits, self.knobs.max_gaussians).indices
-                merged, merged_units = merged[top], merged_units[top]
-            # Offsets restart from zero at the new positions; Adam's moments restart too.
-            self._set_parameters(merged, merged.means.clone(), merged_units)
+            d = split_and_prune(
+                self.result(),
+                self.unit,
+                self.grad_accum,
+                self.grad_count,
+                self.knobs.max_gaussians,
+                self.generator,
+            )
+            before = {name: self.optimiser.state.get(p) for name, p in self.params.items()}
+            # Offsets restart from zero at the new positions; Adam's moments (kept in offset
+            # units, and each Gaussian keeps its unit) move with their Gaussians.
+            self._set_parameters(d.gaussians, d.gaussians.means.clone(), d.unit)
+            for name, p in self.params.items():
+                state = before[name]
+                if state:
+                    self.optimiser.state[p] = {
+                        "step": state["step"].clone(),
+                        "exp_avg": d.carry(state["exp_avg"]),
+                        "exp_avg_sq": d.carry(state["exp_avg_sq"]),
+                    }
 
     # --- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
