@@ -8,7 +8,9 @@
 // pixel by the view's weight w and normalised by ws = max(Σ w, 1e-6) (computed by the host,
 // as torch does). SSIM is kornia's `metrics.ssim`: a separable Gaussian window (σ = 1.5,
 // 2r + 1 taps), rows first, then columns, each padded by reflection; C1 = 0.01²,
-// C2 = 0.03², eps = 1e-12 in the denominator. Its gradient runs the adjoint passes in the
+// C2 = 0.03², eps = 1e-12 in the denominator; pixels of weight 0 take no part (their
+// target is the rendered value and they get no SSIM gradient, as `ssim_loss` detaches
+// them): the windows reach across the mask's edge. Its gradient runs the adjoint passes in the
 // opposite order (columns, then rows); near a border the adjoint also collects the taps
 // that read a pixel through its mirror image. L_geo compares the expected depth D / alpha
 // with Θ's depth over the covered pixels (weight · [alpha > 0.5]) and applies only when
@@ -114,6 +116,11 @@ fn target_at(p: u32) -> vec3<f32> {
     return vec3<f32>(target_rgb[3u * p], target_rgb[3u * p + 1u], target_rgb[3u * p + 2u]);
 }
 
+// The target SSIM's windows read: the rendered value where the weight is 0.
+fn ssim_target(p: u32) -> vec3<f32> {
+    return select(target_at(p), rendered_rgb(p), weights[p] <= 0.0);
+}
+
 fn previous_at(p: u32) -> vec3<f32> {
     return vec3<f32>(previous_rgb[3u * p], previous_rgb[3u * p + 1u], previous_rgb[3u * p + 2u]);
 }
@@ -201,7 +208,7 @@ fn ssim_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
         let q = row + reflect(x0 + t, w);
         let k = tap(t + r);
         let x = rendered_rgb(q);
-        let y = target_at(q);
+        let y = ssim_target(q);
         mx += k * x;
         mt += k * y;
         mxx += k * (x * x);
@@ -424,8 +431,9 @@ fn pixel_grads(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     let x = rendered_rgb(p);
     let t = target_at(p);
     let w = weights[p];
-    // x̄ = F̃ᵀ(ḡ ∂S/∂μx) + 2x F̃ᵀ(ḡ ∂S/∂E[x²]) + t F̃ᵀ(ḡ ∂S/∂E[xt]), then the L1 sign.
-    var v_rgb = a.mu + 2.0 * x * a.exx + t * a.ext;
+    // x̄ = F̃ᵀ(ḡ ∂S/∂μx) + 2x F̃ᵀ(ḡ ∂S/∂E[x²]) + t F̃ᵀ(ḡ ∂S/∂E[xt]) where the weight is
+    // not 0, then the L1 sign.
+    var v_rgb = select(a.mu + 2.0 * x * a.exx + t * a.ext, vec3<f32>(0.0), w <= 0.0);
     v_rgb += tp.lambda_l1 / tp.weight_sum * w / 3.0 * sign(x - t);
     if tp.has_previous != 0u {
         v_rgb += tp.lambda_temporal / tp.weight_sum * w / 3.0 * sign(x - previous_at(p));

@@ -90,9 +90,17 @@ class Knobs:
 
 
 def ssim_loss(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """1 − weighted mean SSIM of (h, w, 3) images."""
+    """1 − weighted mean SSIM of (h, w, 3) images.
+
+    Pixels of weight 0 take no part: an 11-pixel window reaches across the mask's edge, so
+    there the rendered value stands in for the target and carries no gradient. Otherwise the
+    static set would learn from what the moving region shows (tests/test_split.py)."""
     import kornia
 
+    unsupervised = (weight <= 0)[..., None]
+    fixed = rendered.detach()
+    rendered = torch.where(unsupervised, fixed, rendered)
+    target = torch.where(unsupervised, fixed, target)
     window = min(SSIM_WINDOW, (min(rendered.shape[:2]) // 2) * 2 - 1)
     ssim_map = kornia.metrics.ssim(
         rendered.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], window

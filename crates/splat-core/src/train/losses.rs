@@ -236,7 +236,7 @@ impl LossKernels {
             &b.loss,
         ];
         let passes: [(&wgpu::ComputePipeline, &[u32], u32); 8] = [
-            (&self.ssim_rows, &[0, 1, 2, 6], groups),
+            (&self.ssim_rows, &[0, 1, 2, 3, 6], groups),
             (&self.ssim_columns, &[0, 1, 2, 3, 4, 5, 6, 7, 9], summing),
             (&self.totals_a, &[0, 9, 10], 1),
             (&self.pearson_terms, &[0, 1, 3, 4, 9, 10], summing),
