@@ -10,7 +10,8 @@ bench/out/quality.json.
 
     .venv/bin/python bench/quality.py [--kind landscape|room] [--presets draft balanced]
         [--width 1024] [--frames 4] [--depth file|layout] [--backend wgpu|torch]
-        [--overrides JSON] [--maps] [--json bench/out/quality_<kind>.json]
+        [--trainer resident|torch] [--overrides JSON] [--maps]
+        [--json bench/out/quality_<kind>.json]
 
 ``--overrides`` sets preset knobs for every preset run (as scene.yaml's ``overrides:``);
 ``--maps`` adds where the quality is lost (bench/quality_maps.py) to each row.
@@ -37,6 +38,7 @@ from pano4d.config import load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.images import read_depth, read_image, read_mask
 from pano4d.lift.align import FrameAlignment, sphere_for_views
+from pano4d.lift.pipeline import trainer_for
 from pano4d.resample import equirect_to_perspective, sphere_to_equirect
 from pano4d.sphere import view_layout
 from pano4d.synth.scene import SCENE_KINDS
@@ -112,7 +114,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
         update["overrides"] = json.loads(args.overrides)
     cfg = cfg.model_copy(update=update)
     start = time.perf_counter()
-    metrics = run_train(cfg, progress=False, render_backend=args.backend)
+    metrics = run_train(cfg, progress=False, render_backend=args.backend, trainer=args.trainer)
     wall = time.perf_counter() - start
     scene = ply4d.read(output / "scene.ply4d")
     gt_depth = read_depth(root / "depth.exr")
@@ -134,6 +136,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
         "preset": preset,
         "kind": args.kind,
         "overrides": json.loads(args.overrides) if args.overrides else {},
+        "trainer": trainer_for(args.backend, args.trainer),
         "depth_backend": args.depth,
         "wall_s": wall,
         "timings_s": metrics["timings_s"],
@@ -161,6 +164,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--depth", choices=["file", "layout"], default="file")
     parser.add_argument("--backend", choices=["wgpu", "torch"], default="wgpu")
+    parser.add_argument("--trainer", choices=["resident", "torch"],
+                        help="default: resident with wgpu, torch with --backend torch")  # fmt: skip
     parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
     parser.add_argument("--tag", default="", help="suffix of the output folders' names")
     parser.add_argument("--maps", action="store_true", help="where the quality is lost")

@@ -19,13 +19,17 @@ struct RenderParams {
     num_gaussians: u32,
     sh_coeffs: u32,
     antialiased: u32,
-    num_intersections: u32,
+    // Room in the per-intersection buffers: a frame with more intersections draws nothing
+    // and is recorded as overflowed (tiles.wgsl, `plan_intersections`).
+    intersection_capacity: u32,
     // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a resident scene
     // keeps room for its largest dynamic set).
     gaussian_stride: u32,
     // Added to every log-scale as it is read (the viewer's splat-scale slider; 0 in training).
     log_scale_offset: f32,
-    pad0: u32,
+    // 1: add an overflow to the running counts the host checks now and then (a training
+    // loop's frames); 0: the caller checks this frame itself (one-off renders).
+    record_overflow: u32,
     pad1: u32,
 }
 
@@ -66,6 +70,16 @@ fn all_finite4(v: vec4<f32>) -> bool {
 // Linear workgroup index for dispatches split over x and y (x is at most 65535).
 fn linear_workgroup(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return wid.y * nwg.x + wid.x;
+}
+
+// (x, y, 1) workgroups for an indirect dispatch of `groups` linear workgroups, as the host's
+// `dispatch_linear` splits them: x at most 65535.
+fn dispatch_grid(groups: u32) -> vec3<u32> {
+    if groups == 0u {
+        return vec3<u32>(0u, 1u, 1u);
+    }
+    let x = min(groups, 65535u);
+    return vec3<u32>(x, (groups + x - 1u) / x, 1u);
 }
 
 // Tile rectangle [min, max) touched by a projected Gaussian; both ends clamped to the grid.

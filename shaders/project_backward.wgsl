@@ -1,14 +1,13 @@
-// Backward of project.wgsl: sums a Gaussian's per-intersection 2D gradients and carries
-// them to the 3D parameters (mean, log-scale, quaternion, opacity logit, SH), in the
-// same SoA layout as the input. Culled Gaussians get zeros.
+// Backward of project.wgsl: carries each Gaussian's 2D gradients (summed over its tiles
+// by rasterize_backward.wgsl) to the 3D parameters (mean, log-scale, quaternion, opacity
+// logit, SH), in the same SoA layout as the input. Culled Gaussians get zeros.
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> gaussians: array<f32>;
 @group(0) @binding(2) var<storage, read> tile_counts: array<u32>;
-@group(0) @binding(3) var<storage, read> depth_order: array<u32>;
-@group(0) @binding(4) var<storage, read> offsets: array<u32>;
-@group(0) @binding(5) var<storage, read> isect_grads: array<f32>;
-@group(0) @binding(6) var<storage, read_write> grads: array<f32>;
+// Per Gaussian: mean2d (2), conic (3), rgb (3), opacity, depth.
+@group(0) @binding(3) var<storage, read> gaussian_grads: array<f32>;
+@group(0) @binding(4) var<storage, read_write> grads: array<f32>;
 
 const GRAD_STRIDE: u32 = 10u;
 
@@ -25,26 +24,17 @@ fn write_vec3(base: u32, v: vec3<f32>) {
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let i = linear_workgroup(wid, nwg) * 256u + lid;
+    let gid = linear_workgroup(wid, nwg) * 256u + lid;
     let n = params.num_gaussians;
-    if i >= n {
+    if gid >= n {
         return;
     }
-    let gid = depth_order[i];
     let offs = gaussian_offsets(params.gaussian_stride);
     // Gradients are packed densely: sections of n.
     let grad_offs = gaussian_offsets(n);
     let k_count = params.sh_coeffs;
-    let count = tile_counts[gid];
 
-    var acc: array<f32, 10>;
-    let first = offsets[i];
-    for (var s = first; s < first + count; s++) {
-        for (var c = 0u; c < GRAD_STRIDE; c++) {
-            acc[c] += isect_grads[s * GRAD_STRIDE + c];
-        }
-    }
-    if count == 0u {
+    if tile_counts[gid] == 0u {
         write_vec3(grad_offs.means + 3u * gid, vec3<f32>(0.0));
         write_vec3(grad_offs.log_scales + 3u * gid, vec3<f32>(0.0));
         for (var c = 0u; c < 4u; c++) {
@@ -55,6 +45,10 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
             grads[grad_offs.sh + gid * k_count * 3u + k] = 0.0;
         }
         return;
+    }
+    var acc: array<f32, 10>;
+    for (var c = 0u; c < GRAD_STRIDE; c++) {
+        acc[c] = gaussian_grads[gid * GRAD_STRIDE + c];
     }
     let v_xy = vec2<f32>(acc[0], acc[1]);
     let v_conic = vec3<f32>(acc[2], acc[3], acc[4]);

@@ -1,6 +1,7 @@
 // [start, end) of every tile in the tile-sorted intersection list (cleared to 0 first).
+// Dispatched indirectly with the size `plan_intersections` (tiles.wgsl) wrote.
 
-@group(0) @binding(0) var<uniform> params: RenderParams;
+@group(0) @binding(0) var<storage, read> tile_plan: array<u32, 8>;
 @group(0) @binding(1) var<storage, read> sorted_keys: array<u32>;
 @group(0) @binding(2) var<storage, read_write> ranges: array<vec2<u32>>;
 
@@ -8,7 +9,8 @@
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
     let j = linear_workgroup(wid, nwg) * 256u + lid;
-    let m = params.num_intersections;
+    // The intersections drawn this frame (0 when it overflowed).
+    let m = tile_plan[0];
     if j >= m {
         return;
     }

@@ -6,11 +6,11 @@
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> projected: array<Projected>;
-@group(0) @binding(2) var<storage, read> sorted_slots: array<u32>;
-@group(0) @binding(3) var<storage, read> isect_gaussian: array<u32>;
-@group(0) @binding(4) var<storage, read> ranges: array<vec2<u32>>;
-@group(0) @binding(5) var<storage, read_write> out_pixels: array<f32>;
-@group(0) @binding(6) var<storage, read_write> pixel_state: array<vec2<u32>>;
+// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
+@group(0) @binding(2) var<storage, read> sorted_gaussians: array<u32>;
+@group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read_write> out_pixels: array<f32>;
+@group(0) @binding(5) var<storage, read_write> pixel_state: array<vec2<u32>>;
 
 const BATCH: u32 = 256u;
 
@@ -51,7 +51,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
         }
         let j_load = start + lid;
         if j_load < range.y {
-            let p = projected[isect_gaussian[sorted_slots[j_load]]];
+            let p = projected[sorted_gaussians[j_load]];
             batch_xy_opacity_z[lid] = p.xy_opacity_z;
             batch_conic[lid] = p.conic_radius;
             batch_rgb[lid] = p.rgb;

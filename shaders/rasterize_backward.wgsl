@@ -1,20 +1,24 @@
 // Backward of rasterize.wgsl: per tile, every pixel walks its contributors back to front
 // (T recovered by dividing out 1 - alpha, colour/depth behind accumulated as in 3DGS) and
 // produces gradients w.r.t. each Gaussian's 2D mean, conic, colour, opacity and depth.
-// They are summed over the tile's pixels in workgroup memory and written, without global
-// atomics, to the intersection's own slot; project_backward.wgsl sums a Gaussian's slots.
-// How the pixels' values are summed (`sum_grads`) is prepended by the host: float adds by a
-// compare-exchange loop on the u32 bits (grad_sum_atomic.wgsl), or first across the
-// subgroup where the device has subgroup operations (grad_sum_subgroup.wgsl).
+// They are summed over the tile's pixels in workgroup memory, and each batch ends with one
+// invocation per Gaussian adding the tile's totals into that Gaussian's ten sums in
+// `gaussian_grads` (zeroed by the host), which project_backward.wgsl carries to the 3D
+// parameters. Nothing is kept per intersection.
+// Two parts are prepended by the host, by what the device has:
+// `sum_grads` (the tile sum): a compare-exchange loop on workgroup memory per pixel
+//   (grad_sum_plain.wgsl), or a subgroup sum first so that one invocation per subgroup adds
+//   (grad_sum_subgroup.wgsl);
+// `add_gaussian_grad` and the `gaussian_grads` binding (6): native f32 atomic adds
+//   (grad_add_float.wgsl) or a compare-exchange loop on the u32 bits (grad_add_cas.wgsl).
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> projected: array<Projected>;
-@group(0) @binding(2) var<storage, read> sorted_slots: array<u32>;
-@group(0) @binding(3) var<storage, read> isect_gaussian: array<u32>;
-@group(0) @binding(4) var<storage, read> ranges: array<vec2<u32>>;
-@group(0) @binding(5) var<storage, read> pixel_state: array<vec2<u32>>;
-@group(0) @binding(6) var<storage, read> v_pixels: array<f32>;
-@group(0) @binding(7) var<storage, read_write> isect_grads: array<f32>;
+// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
+@group(0) @binding(2) var<storage, read> sorted_gaussians: array<u32>;
+@group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read> pixel_state: array<vec2<u32>>;
+@group(0) @binding(5) var<storage, read> v_pixels: array<f32>;
 
 const BATCH: u32 = 128u;
 // mean2d (2), conic (3), rgb (3), opacity, depth
@@ -23,14 +27,14 @@ const GRAD_STRIDE: u32 = 10u;
 var<workgroup> batch_xy_opacity_z: array<vec4<f32>, 128>;
 var<workgroup> batch_conic: array<vec4<f32>, 128>;
 var<workgroup> batch_rgb: array<vec4<f32>, 128>;
-var<workgroup> batch_slot: array<u32, 128>;
+var<workgroup> batch_gaussian: array<u32, 128>;
 var<workgroup> batch_grads: array<atomic<u32>, 1280>;
 var<workgroup> max_end: atomic<u32>;
 var<workgroup> max_end_snapshot: u32;
 
 // Float add on workgroup memory by compare-exchange on the u32 bits (WGSL has no portable
-// float atomics).
-fn add_grad(idx: u32, value: f32) {
+// float atomics, and wgpu's f32 atomics are for storage buffers only).
+fn add_tile_grad(idx: u32, value: f32) {
     var old = atomicLoad(&batch_grads[idx]);
     loop {
         let new_bits = bitcast<u32>(bitcast<f32>(old) + value);
@@ -90,12 +94,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
         let batch_start = max(range.x, select(0u, batch_end - BATCH, batch_end >= BATCH));
         let count = batch_end - batch_start;
         if lid < count {
-            let slot = sorted_slots[batch_start + lid];
-            let p = projected[isect_gaussian[slot]];
+            let gid = sorted_gaussians[batch_start + lid];
+            let p = projected[gid];
             batch_xy_opacity_z[lid] = p.xy_opacity_z;
             batch_conic[lid] = p.conic_radius;
             batch_rgb[lid] = p.rgb;
-            batch_slot[lid] = slot;
+            batch_gaussian[lid] = gid;
         }
         for (var k = lid; k < BATCH * GRAD_STRIDE; k += 256u) {
             atomicStore(&batch_grads[k], 0u);
@@ -150,10 +154,15 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
             sum_grads(k * GRAD_STRIDE, contributes, grads);
         }
         workgroupBarrier();
+        // The tile's totals, one global add per Gaussian and value (none for zeros: a
+        // Gaussian whose box touches the tile may reach none of its pixels).
         if lid < count {
-            let dst = batch_slot[lid] * GRAD_STRIDE;
+            let dst = batch_gaussian[lid] * GRAD_STRIDE;
             for (var c = 0u; c < GRAD_STRIDE; c++) {
-                isect_grads[dst + c] = bitcast<f32>(atomicLoad(&batch_grads[lid * GRAD_STRIDE + c]));
+                let total = bitcast<f32>(atomicLoad(&batch_grads[lid * GRAD_STRIDE + c]));
+                if total != 0.0 {
+                    add_gaussian_grad(dst + c, total);
+                }
             }
         }
         workgroupBarrier();

@@ -3,13 +3,19 @@
 // `scan_block_sums` scans the totals in one workgroup (looping, so any length works),
 // `add_block_sums` adds each block's prefix back. No inter-workgroup communication
 // within a dispatch, so no forward-progress assumptions.
+// The length comes from a buffer, written by the host or by an earlier kernel (the tile
+// sort's, sized on the GPU), and the block-wise dispatches are indirect from it.
 
-struct ScanParams {
+struct ScanPlan {
     len: u32,
     num_blocks: u32,
+    // Workgroups of `scan_blocks` and `add_block_sums` (an indirect dispatch: x, y, 1).
+    groups_x: u32,
+    groups_y: u32,
+    groups_z: u32,
 }
 
-@group(0) @binding(0) var<uniform> scan_params: ScanParams;
+@group(0) @binding(0) var<storage, read> scan_plan: ScanPlan;
 @group(0) @binding(1) var<storage, read_write> data: array<u32>;
 @group(0) @binding(2) var<storage, read_write> block_sums: array<u32>;
 
@@ -42,7 +48,7 @@ fn workgroup_exclusive_scan(lid: u32, value: u32) -> vec2<u32> {
 fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                @builtin(local_invocation_index) lid: u32) {
     let block = linear_workgroup(wid, nwg);
-    if block >= scan_params.num_blocks {
+    if block >= scan_plan.num_blocks {
         return;
     }
     let base = block * SCAN_BLOCK + lid * SCAN_PER_THREAD;
@@ -51,7 +57,7 @@ fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     for (var k = 0u; k < SCAN_PER_THREAD; k++) {
         let idx = base + k;
         var v = 0u;
-        if idx < scan_params.len {
+        if idx < scan_plan.len {
             v = data[idx];
         }
         values[k] = v;
@@ -61,7 +67,7 @@ fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     var running = scanned.x;
     for (var k = 0u; k < SCAN_PER_THREAD; k++) {
         let idx = base + k;
-        if idx < scan_params.len {
+        if idx < scan_plan.len {
             data[idx] = running;
         }
         running += values[k];
@@ -74,15 +80,15 @@ fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
 @compute @workgroup_size(256)
 fn scan_block_sums(@builtin(local_invocation_index) lid: u32) {
     var carry = 0u;
-    let chunks = (scan_params.num_blocks + SCAN_THREADS - 1u) / SCAN_THREADS;
+    let chunks = (scan_plan.num_blocks + SCAN_THREADS - 1u) / SCAN_THREADS;
     for (var c = 0u; c < chunks; c++) {
         let idx = c * SCAN_THREADS + lid;
         var v = 0u;
-        if idx < scan_params.num_blocks {
+        if idx < scan_plan.num_blocks {
             v = block_sums[idx];
         }
         let scanned = workgroup_exclusive_scan(lid, v);
-        if idx < scan_params.num_blocks {
+        if idx < scan_plan.num_blocks {
             block_sums[idx] = carry + scanned.x;
         }
         carry += scanned.y;
@@ -93,14 +99,14 @@ fn scan_block_sums(@builtin(local_invocation_index) lid: u32) {
 fn add_block_sums(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                   @builtin(local_invocation_index) lid: u32) {
     let block = linear_workgroup(wid, nwg);
-    if block >= scan_params.num_blocks {
+    if block >= scan_plan.num_blocks {
         return;
     }
     let prefix = block_sums[block];
     let base = block * SCAN_BLOCK + lid * SCAN_PER_THREAD;
     for (var k = 0u; k < SCAN_PER_THREAD; k++) {
         let idx = base + k;
-        if idx < scan_params.len {
+        if idx < scan_plan.len {
             data[idx] += prefix;
         }
     }

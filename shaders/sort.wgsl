@@ -6,20 +6,32 @@
 // `scatter`: each block writes its keys in input order. Ranks within a block come from a
 //   workgroup scan of per-invocation digit counts packed as sixteen 16-bit counters, so
 //   the pass is stable without subgroup operations or any assumption about subgroup size.
+// The number of keys comes from a buffer (written by the host, or on the GPU for the tile
+// sort) and both dispatches are indirect from it; only the digit's shift is per pass.
 
-struct SortParams {
-    num_keys: u32,
+struct SortPass {
     shift: u32,
-    num_blocks: u32,
-    _pad: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
-@group(0) @binding(0) var<uniform> sort_params: SortParams;
+struct SortPlan {
+    num_keys: u32,
+    num_blocks: u32,
+    // Workgroups of both dispatches (an indirect dispatch: x, y, 1).
+    groups_x: u32,
+    groups_y: u32,
+    groups_z: u32,
+}
+
+@group(0) @binding(0) var<uniform> sort_pass: SortPass;
 @group(0) @binding(1) var<storage, read> keys_in: array<u32>;
 @group(0) @binding(2) var<storage, read> vals_in: array<u32>;
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
+@group(0) @binding(6) var<storage, read> sort_plan: SortPlan;
 
 const SORT_THREADS: u32 = 256u;
 const SORT_ROUNDS: u32 = 4u;
@@ -32,7 +44,7 @@ var<workgroup> flags_hi: array<vec4<u32>, 256>;
 var<workgroup> digit_base: array<u32, 16>;
 
 fn digit_of(key: u32) -> u32 {
-    return (key >> sort_params.shift) & 0xfu;
+    return (key >> sort_pass.shift) & 0xfu;
 }
 
 @compute @workgroup_size(256)
@@ -43,17 +55,17 @@ fn count_digits(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         atomicStore(&histogram[lid], 0u);
     }
     workgroupBarrier();
-    if block < sort_params.num_blocks {
+    if block < sort_plan.num_blocks {
         for (var r = 0u; r < SORT_ROUNDS; r++) {
             let idx = block * SORT_BLOCK + r * SORT_THREADS + lid;
-            if idx < sort_params.num_keys {
+            if idx < sort_plan.num_keys {
                 atomicAdd(&histogram[digit_of(keys_in[idx])], 1u);
             }
         }
     }
     workgroupBarrier();
-    if lid < DIGITS && block < sort_params.num_blocks {
-        counts[lid * sort_params.num_blocks + block] = atomicLoad(&histogram[lid]);
+    if lid < DIGITS && block < sort_plan.num_blocks {
+        counts[lid * sort_plan.num_blocks + block] = atomicLoad(&histogram[lid]);
     }
 }
 
@@ -87,11 +99,11 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
            @builtin(local_invocation_index) lid: u32) {
     let block = linear_workgroup(wid, nwg);
     // Uniform per workgroup, so the early return keeps barriers in uniform control flow.
-    if block >= sort_params.num_blocks {
+    if block >= sort_plan.num_blocks {
         return;
     }
     if lid < DIGITS {
-        digit_base[lid] = counts[lid * sort_params.num_blocks + block];
+        digit_base[lid] = counts[lid * sort_plan.num_blocks + block];
     }
     // Each invocation owns SORT_ROUNDS consecutive keys, so block order is
     // (invocation, element) order and one workgroup scan ranks the whole block.
@@ -99,7 +111,7 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     var keys: array<u32, 4>;
     var local_counts = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
     for (var e = 0u; e < SORT_ROUNDS; e++) {
-        if first + e < sort_params.num_keys {
+        if first + e < sort_plan.num_keys {
             keys[e] = keys_in[first + e];
             let hot = one_hot(digit_of(keys[e]));
             local_counts[0] += hot[0];
@@ -124,7 +136,7 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     // Exclusive prefix per digit = inclusive - own counts; then rank within the thread.
     var seen = array<vec4<u32>, 2>(flags_lo[lid] - local_counts[0], flags_hi[lid] - local_counts[1]);
     for (var e = 0u; e < SORT_ROUNDS; e++) {
-        if first + e < sort_params.num_keys {
+        if first + e < sort_plan.num_keys {
             let digit = digit_of(keys[e]);
             let dst = digit_base[digit] + counter(seen, digit);
             keys_out[dst] = keys[e];

@@ -191,9 +191,10 @@ def test_a_gpu_task_renders_on_the_gpu_ray_gave_it(
     smi.write_text("#!/bin/sh\necho '0, 00000000:3B:00.0'\necho '1, 00000000:AF:00.0'\n")
     smi.chmod(0o755)
     monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
-    # Set (to empty, which means unset), not deleted: monkeypatch records nothing when it
-    # deletes an absent variable, and the pin _pin_adapter writes would outlive the test.
-    monkeypatch.setenv("PANO4D_ADAPTER", "")
+    # _pin_adapter writes os.environ itself: set-then-delete makes monkeypatch restore the
+    # variable as it was before this test (absent or not), so it never leaks into later tests.
+    monkeypatch.setenv("PANO4D_ADAPTER", "placeholder")
+    monkeypatch.delenv("PANO4D_ADAPTER")
     monkeypatch.setattr(ray, "get_gpu_ids", lambda: [1])
     assert batch._pin_adapter() == "pci:00000000:AF:00.0"
     assert os.environ["PANO4D_ADAPTER"] == "pci:00000000:AF:00.0"

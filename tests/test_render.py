@@ -3,6 +3,7 @@ reference against finite differences, extreme inputs, and a real 3DGS scene."""
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import subprocess
@@ -87,6 +88,149 @@ def test_sh_degrees_and_off_centre_principal_point() -> None:
         assert_outputs_close(a, b)
 
 
+# --- closed forms -----------------------------------------------------------------------
+# Both backends follow one written spec, so a convention error shared by both (quaternion
+# order, R against its transpose, the antialiasing factor) would pass their comparison.
+# These footprints are derived by hand instead. The camera sits at the origin looking
+# along +x with +z up: image x (right) is world -y, image y (down) is world -z. On the
+# optical axis the EWA Jacobian is diag(f/z, f/z), so a Gaussian's image covariance is
+# (f/z)² times the (y, z) block of its world covariance, plus the 0.3 px² low-pass. An odd
+# image size puts the axis on a pixel centre, where the footprint peaks.
+CLOSED_FORM_SIZE = (63, 47)
+
+
+def closed_form_camera() -> Camera:
+    return Camera.from_fov(70.0, *CLOSED_FORM_SIZE)
+
+
+def footprint(mean2d: tuple[float, float], cov: torch.Tensor, opacity: float,
+              antialiased: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per pixel (H, W): alpha of a footprint of image covariance ``cov`` (before the
+    low-pass) and its power, by the spec's rules (3σ and 1/255 cuts, 0.999 clamp)."""
+    w, h = CLOSED_FORM_SIZE
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64) + 0.5,
+                            torch.arange(w, dtype=torch.float64) + 0.5, indexing="ij")
+    d = torch.stack([xs - mean2d[0], ys - mean2d[1]], dim=-1)
+    blurred = cov + 0.3 * torch.eye(2, dtype=torch.float64)
+    power = -0.5 * torch.einsum("...i,ij,...j->...", d, torch.linalg.inv(blurred), d)
+    if antialiased:
+        opacity *= math.sqrt(float(torch.linalg.det(cov) / torch.linalg.det(blurred)))
+    alpha = torch.clamp(opacity * torch.exp(power), max=0.999)
+    alpha = torch.where((power >= -4.5) & (alpha >= 1 / 255), alpha, torch.zeros_like(alpha))
+    return alpha, power
+
+
+def near_a_cut(alpha: torch.Tensor, power: torch.Tensor, opacity: float) -> torch.Tensor:
+    """Pixels whose cut could go either way by float32 rounding (left out of checks)."""
+    raw = opacity * torch.exp(power)
+    return ((power + 4.5).abs() < 1e-4) | ((raw - 1 / 255).abs() < 1e-5)
+
+
+def rotation(axis: str, degrees: float) -> tuple[tuple[float, float, float, float], torch.Tensor]:
+    """A quaternion (w, x, y, z) about a world axis and the rotation matrix it stands for,
+    written out by hand for that axis."""
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    half = (math.cos(a / 2), math.sin(a / 2))
+    quat, matrix = {
+        "x": ((half[0], half[1], 0.0, 0.0), [[1, 0, 0], [0, c, -s], [0, s, c]]),
+        "y": ((half[0], 0.0, half[1], 0.0), [[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+        "z": ((half[0], 0.0, 0.0, half[1]), [[c, -s, 0], [s, c, 0], [0, 0, 1]]),
+    }[axis]
+    return quat, torch.tensor(matrix, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.parametrize("axis", ["x", "y", "z"])
+@pytest.mark.parametrize("backend", ["wgpu", "torch"])
+def test_rotated_anisotropic_gaussian_renders_its_closed_form_footprint(
+        backend: str, axis: str, antialiased: bool) -> None:
+    # Turned about the viewing axis (x): its image axes turn by the same angle, towards +y
+    # (down) for a positive turn; about up (z) or the camera's right (y): one image axis
+    # mixes two world scales. Each quaternion component is exercised.
+    z, opacity, dc = 4.0, 0.85, (0.8, -0.3, 0.1)
+    log_scale = (-1.9, -1.0, -1.6)
+    quat, rot = rotation(axis, {"x": 35.0, "y": 25.0, "z": 50.0}[axis])
+    g = Gaussians(
+        means=torch.tensor([[z, 0.0, 0.0]]), log_scales=torch.tensor([log_scale]),
+        quats=torch.tensor([quat]),
+        opacity_logits=torch.tensor([math.log(opacity / (1 - opacity))]),
+        sh=torch.tensor([[dc]]),
+    )
+    cam = closed_form_camera()
+    f = float(cam.K[0, 0])
+    world = rot @ torch.diag(torch.tensor(log_scale, dtype=torch.float64).exp() ** 2) @ rot.T
+    # Image (x, y) = world (-y, -z): the (y, z) block, both signs flipped (which cancel).
+    cov = (f / z) ** 2 * world[1:, 1:]
+    centre = (float(cam.K[0, 2]), float(cam.K[1, 2]))
+    alpha, power = footprint(centre, cov, opacity, antialiased)
+    bg = torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
+    with torch.no_grad():
+        out = render(g, cam, background=bg.float(), backend=backend, antialiased=antialiased)
+    check = ~near_a_cut(alpha, power, opacity)
+    assert check.sum() > 0.95 * check.numel()
+    assert (out.alpha.double() - alpha)[check].abs().max() <= 1e-5
+    colour = 0.5 + 0.28209479177387814 * torch.tensor(dc, dtype=torch.float64)
+    want_rgb = alpha[..., None] * colour + (1 - alpha[..., None]) * bg
+    assert (out.rgb.double() - want_rgb)[check].abs().max() <= 1e-5
+    drawn = check & (alpha > 0.01)
+    assert (out.depth.double() - z)[drawn].abs().max() <= 1e-4
+    # Every pixel within 1e-5 pins the footprint's axes and extents to the closed form's
+    # (a turn the other way, or a swapped quaternion, moves the long axis by 50–100°). The
+    # peak is on the axis' pixel, at the (antialiased) opacity.
+    peak = (int(centre[1]), int(centre[0]))
+    assert float(out.alpha[peak]) == float(out.alpha.max())
+    assert abs(float(out.alpha[peak]) - float(alpha.max())) <= 1e-5
+
+
+@pytest.mark.parametrize("front_first", [True, False])
+@pytest.mark.parametrize("backend", ["wgpu", "torch"])
+def test_two_overlapping_gaussians_composite_in_closed_form(backend: str,
+                                                            front_first: bool) -> None:
+    # Two isotropic Gaussians off the axis at camera (x, y, z): the Jacobian
+    # (f/z)[[1, 0, -x/z], [0, 1, -y/z]] makes their image covariance
+    # s² (f/z)² [[1 + u², uv], [uv, 1 + v²]] with u = x/z, v = y/z, centred at
+    # (f u + cx, f v + cy). Front to back: C = c1 a1 + c2 a2 (1 - a1) + bg (1 - a1)(1 - a2),
+    # alpha = 1 - (1 - a1)(1 - a2), D = z1 a1 + z2 a2 (1 - a1), whatever the input order.
+    front = {"world": (4.0, 0.3, -0.1), "log_scale": -1.2, "opacity": 0.7, "dc": (0.9, -0.5, -0.4)}
+    back = {"world": (6.0, -0.2, 0.15), "log_scale": -0.8, "opacity": 0.8, "dc": (-0.6, 0.1, 0.9)}
+    pair = [front, back] if front_first else [back, front]
+    g = Gaussians(
+        means=torch.tensor([p["world"] for p in pair]),
+        log_scales=torch.tensor([[p["log_scale"]] * 3 for p in pair]),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2),
+        opacity_logits=torch.tensor([math.log(p["opacity"] / (1 - p["opacity"])) for p in pair]),
+        sh=torch.tensor([[p["dc"]] for p in pair]),
+    )
+    cam = closed_form_camera()
+    f, cx, cy = float(cam.K[0, 0]), float(cam.K[0, 2]), float(cam.K[1, 2])
+    layers = []
+    for p in (front, back):
+        wx, wy, wz = p["world"]
+        x, y, z = -wy, -wz, wx
+        u, v = x / z, y / z
+        cov = math.exp(2 * p["log_scale"]) * (f / z) ** 2 * torch.tensor(
+            [[1 + u * u, u * v], [u * v, 1 + v * v]], dtype=torch.float64)
+        alpha, power = footprint((f * u + cx, f * v + cy), cov, p["opacity"], False)
+        colour = 0.5 + 0.28209479177387814 * torch.tensor(p["dc"], dtype=torch.float64)
+        layers.append((alpha, power, colour.clamp(min=0), z, p["opacity"]))
+    (a1, p1, c1, z1, o1), (a2, p2, c2, z2, o2) = layers
+    bg = torch.tensor([0.2, 0.1, 0.3], dtype=torch.float64)
+    want_alpha = 1 - (1 - a1) * (1 - a2)
+    want_rgb = (c1 * a1[..., None] + c2 * (a2 * (1 - a1))[..., None]
+                + bg * ((1 - a1) * (1 - a2))[..., None])
+    want_accum_depth = z1 * a1 + z2 * a2 * (1 - a1)
+    with torch.no_grad():
+        out = render(g, cam, background=bg.float(), backend=backend)
+    check = ~(near_a_cut(a1, p1, o1) | near_a_cut(a2, p2, o2))
+    both_drawn = check & (a1 > 0.05) & (a2 > 0.05)
+    assert both_drawn.sum() > 50, "the two footprints overlap"
+    assert (out.alpha.double() - want_alpha)[check].abs().max() <= 1e-5
+    assert (out.rgb.double() - want_rgb)[check].abs().max() <= 1e-5
+    got_accum_depth = out.depth.double() * out.alpha.double()
+    assert (got_accum_depth - want_accum_depth)[check].abs().max() <= 1e-4
+
+
 def weighted_loss(out, weights: list[torch.Tensor]) -> torch.Tensor:
     accum_depth = out.depth * out.alpha
     return (
@@ -101,9 +245,67 @@ def gradients(g: Gaussians, cam: Camera, backend: str, weights, **kw) -> dict[st
     return {k: v.grad for k, v in g.tensors().items()}
 
 
+# A float32 rasteriser cannot match the float64 reference more closely than a float32
+# evaluation of the same maths does. Each gradient check measures that: the torch backend
+# in float32 against itself in float64, per Gaussian, and allows the wgpu gradients
+# GRADIENT_SLACK times the worst of those errors (different operation orders round
+# differently; at 256² the two are within 2x of each other). An error is relative to the
+# Gaussian's own gradient, or to RELATIVE_FLOOR of the largest Gaussian's where its own is
+# smaller (whose gradient nearly cancels over its pixels).
+GRADIENT_SLACK = 8.0
+RELATIVE_FLOOR = 1e-3
+
+
+def per_gaussian_errors(got: dict[str, torch.Tensor],
+                        ref: dict[str, torch.Tensor]) -> dict[str, tuple[float, int]]:
+    """Per parameter: the worst Gaussian's relative error and its index."""
+    worst = {}
+    for name, r in ref.items():
+        r = r.double().reshape(r.shape[0], -1)
+        g = got[name].double().reshape(r.shape)
+        norms = torch.linalg.norm(r, dim=1)
+        floor = RELATIVE_FLOOR * float(norms.max()) if len(norms) else 0.0
+        if floor == 0.0:
+            # No gradient at all in the reference: only exact zeros match it.
+            size = g.abs().sum(dim=1)
+            worst[name] = (math.inf if bool((size > 0).any()) else 0.0,
+                           int(size.argmax()) if len(size) else 0)
+            continue
+        err = torch.linalg.norm(g - r, dim=1) / torch.clamp(norms, min=floor)
+        worst[name] = (float(err.max()), int(err.argmax()))
+    return worst
+
+
+Grads = dict[str, torch.Tensor]
+
+
+def references(g: Gaussians, cam: Camera, weights, **kw) -> tuple[Grads, Grads]:
+    """The torch reference's gradients in float64 and in float32."""
+    return (gradients(g.to(torch.float64), cam, "torch", weights, **kw),
+            gradients(g, cam, "torch", weights, **kw))
+
+
+def assert_as_accurate_as_float32(got: Grads, refs: tuple[Grads, Grads], what: str) -> None:
+    """Checks wgpu gradients ``got`` per Gaussian against the float64 reference."""
+    ref, ref32 = refs
+    f32 = per_gaussian_errors(ref32, ref)
+    for name, (err, i) in per_gaussian_errors(got, ref).items():
+        allowed = GRADIENT_SLACK * f32[name][0] + 1e-6
+        assert err <= allowed, (
+            f"{what}, {name}: Gaussian {i} off by {err:.2e} of its gradient (a float32 "
+            f"reference is off by {f32[name][0]:.2e} at worst): {got[name][i].tolist()} vs "
+            f"{ref[name][i].tolist()}"
+        )
+    # Zeros by construction (clamps, culling: exact in both the reference's precisions)
+    # stay exact.
+    for name, r in ref.items():
+        zero = (r == 0) & (ref32[name] == 0)
+        assert (got[name][zero] == 0).all(), f"{what}, {name}: nonzero where the reference is 0"
+
+
 @pytest.mark.parametrize("antialiased", [False, True])
 @pytest.mark.parametrize("inside", [False, True])
-def test_gradients_match_reference(antialiased: bool, inside: bool) -> None:
+def test_gradients_match_reference_per_gaussian(antialiased: bool, inside: bool) -> None:
     if inside:
         # Gaussians all around the camera: Jacobian clamps, culling behind, termination.
         g = random_scene(200, seed=17, sh_degree=3, centre=(0.0, 0.0, 0.0), spread=3.0,
@@ -111,17 +313,150 @@ def test_gradients_match_reference(antialiased: bool, inside: bool) -> None:
     else:
         g = random_scene(60, seed=7, sh_degree=3, log_scale=(-2.5, -1.0))
     cam = camera(32, 24)
-    gen = torch.Generator().manual_seed(3)
-    weights = [torch.rand(24, 32, 3, generator=gen), torch.rand(24, 32, generator=gen),
-               0.1 * torch.rand(24, 32, generator=gen)]
-    bg = torch.tensor([0.3, 0.5, 0.2])
-    got = gradients(g, cam, "wgpu", weights, background=bg, antialiased=antialiased)
-    ref = gradients(g.to(torch.float64), cam, "torch", weights, background=bg,
-                    antialiased=antialiased)
-    for name, r in ref.items():
-        assert torch.linalg.norm(r) > 0, name
-        err = float(torch.linalg.norm(got[name].double() - r) / torch.linalg.norm(r))
-        assert err <= 1e-3, f"{name}: relative error {err:.2e}"
+    weights = loss_weights(32, 24, seed=3)
+    kw = {"background": torch.tensor([0.3, 0.5, 0.2]), "antialiased": antialiased}
+    got = gradients(g, cam, "wgpu", weights, **kw)
+    assert all(torch.linalg.norm(v) > 0 for v in got.values())
+    assert_as_accurate_as_float32(got, references(g, cam, weights, **kw), "32x24")
+
+
+def loss_weights(width: int, height: int, seed: int) -> list[torch.Tensor]:
+    gen = torch.Generator().manual_seed(seed)
+    return [torch.rand(height, width, 3, generator=gen), torch.rand(height, width, generator=gen),
+            0.1 * torch.rand(height, width, generator=gen)]
+
+
+# The backward's paths, chosen when the renderer is created (once per process): tile sums
+# over a subgroup first or per pixel, Gaussian sums by native float atomics or by
+# compare-exchange (docs/rasterizer.md). Each runs in its own process.
+GRADIENT_PATHS = {
+    "subgroups, float atomics": {"PANO4D_SUBGROUPS": "1", "PANO4D_FLOAT_ATOMICS": "1"},
+    "plain, compare-exchange": {"PANO4D_SUBGROUPS": "0", "PANO4D_FLOAT_ATOMICS": "0"},
+}
+_PATH_SCRIPT = """
+import sys
+import torch
+sys.path.insert(0, sys.argv[1])
+from test_render import gradients
+from pano4d.render import adapter_info
+args = torch.load(sys.argv[2], weights_only=False)
+torch.save((adapter_info(), gradients(*args["args"], **args["kw"])), sys.argv[3])
+"""
+
+
+def gradients_on_path(path: str, tmp_path: Path, *args, **kw) -> dict[str, torch.Tensor]:
+    """``gradients(*args, **kw)`` with the wgpu backend on ``path``; skips where the
+    adapter lacks the path's features."""
+    env = {**os.environ, **GRADIENT_PATHS[path]}
+    inputs, outputs = tmp_path / "inputs.pt", tmp_path / "outputs.pt"
+    torch.save({"args": args, "kw": kw}, inputs)
+    subprocess.run([sys.executable, "-c", _PATH_SCRIPT, str(Path(__file__).parent), str(inputs),
+                    str(outputs)], env=env, check=True, timeout=600)
+    info, got = torch.load(outputs, weights_only=False)
+    wanted = {"subgroups": env["PANO4D_SUBGROUPS"], "float_atomics": env["PANO4D_FLOAT_ATOMICS"]}
+    for feature, on in wanted.items():
+        if info[feature] != ("yes" if on == "1" else "no"):
+            pytest.skip(f"{info['name']} has no {feature.replace('_', ' ')}: path {path!r} "
+                        "cannot run on it")
+    return got
+
+
+@functools.cache
+def scene_256() -> tuple[Gaussians, Camera, list[torch.Tensor], dict, tuple[Grads, Grads]]:
+    """A 256² scene, its loss weights, render options and reference gradients (shared by
+    the paths' tests: the dense float64 reference takes most of their time)."""
+    g = random_scene(150, seed=5, sh_degree=2, log_scale=(-3.0, -1.5))
+    cam = camera(256, 256)
+    weights = loss_weights(256, 256, seed=3)
+    kw = {"background": torch.tensor([0.3, 0.5, 0.2]), "antialiased": True}
+    return g, cam, weights, kw, references(g, cam, weights, **kw)
+
+
+@pytest.mark.parametrize("path", list(GRADIENT_PATHS))
+def test_gradients_per_gaussian_at_256(path: str, tmp_path: Path) -> None:
+    g, cam, weights, kw, refs = scene_256()
+    got = gradients_on_path(path, tmp_path, g, cam, "wgpu", weights, **kw)
+    assert all(torch.linalg.norm(v) > 0 for v in got.values())
+    assert_as_accurate_as_float32(got, refs, f"256x256, {path}")
+
+
+def gaussians(rows: list[dict]) -> Gaussians:
+    """Gaussians with SH degree 0 from rows of mean, log_scale (3), quat, opacity, rgb_dc."""
+    def column(key: str, default) -> torch.Tensor:
+        return torch.tensor([row.get(key, default) for row in rows], dtype=torch.float32)
+
+    opacity = column("opacity", 0.8)
+    # Anisotropic and turned by default: an isotropic Gaussian's rotation gradient is zero
+    # only by cancellation, float32 noise against an exact float64 zero.
+    return Gaussians(
+        means=column("mean", None), log_scales=column("log_scale", (-1.5, -1.8, -1.3)),
+        quats=column("quat", (0.96, 0.1, -0.2, 0.15)),
+        opacity_logits=torch.log(opacity / (1 - opacity)),
+        sh=column("rgb_dc", (0.5, -0.2, 0.1))[:, None, :],
+    )
+
+
+# Each extreme Gaussian with two ordinary ones beside and behind it.
+ORDINARY = [{"mean": (4.0, 0.35, 0.0), "rgb_dc": (-0.4, 0.6, 0.2)},
+            {"mean": (6.0, -0.3, 0.1), "log_scale": (-1.0, -1.3, -0.9), "opacity": 0.6,
+             "quat": (0.9, 0.2, -0.3, 0.1)}]
+EXTREMES = {
+    # Two axes past the log-scale clamps [-12, 8]: no gradient for those two.
+    "clamped log-scales": [{"mean": (5.0, 0.0, 0.0), "log_scale": (9.0, -1.2, -13.0),
+                            "quat": (0.95, 0.1, 0.2, 0.1)}],
+    # In front of the near plane, extending behind it, seen at x/z past the Jacobian clamp.
+    "straddling the near plane": [{"mean": (0.05, -0.06, 0.01), "log_scale": (-1.0, -1.3, -0.8)}],
+    # Just above the 1/255 opacity cut, and one below it (culled: zero gradient).
+    "opacity near 0": [{"mean": (5.0, 0.0, 0.0), "opacity": 0.006},
+                       {"mean": (5.0, 0.1, 0.0), "opacity": 0.003}],
+    # Alpha clamps at 0.999 over its core (a few pixels: ~50 px wide, it is within 0.1 %
+    # of its peak only there): no gradient through the clamped pixels.
+    "opacity near 1": [{"mean": (5.0, 0.0, 0.0), "opacity": 1 - 1e-5,
+                        "log_scale": (1.8, 1.6, 2.0)}],
+    # Screen-filling and opaque enough to end the pixels' walks.
+    "huge": [{"mean": (3.0, 0.0, 0.0), "log_scale": (2.5, 3.0, 2.0), "opacity": 0.99}],
+    # Far below a pixel: the 0.3 px² low-pass is its footprint (and, antialiased, its
+    # opacity falls under the cut).
+    "sub-pixel": [{"mean": (5.0, 0.1, 0.05), "log_scale": (-7.0, -7.5, -6.5), "opacity": 0.9}],
+}
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.parametrize("case", list(EXTREMES))
+def test_gradients_per_gaussian_at_the_extremes(case: str, antialiased: bool) -> None:
+    g = gaussians(EXTREMES[case] + ORDINARY)
+    cam = Camera.from_fov(70.0, 64, 48)
+    weights = loss_weights(64, 48, seed=7)
+    kw = {"background": torch.tensor([0.2, 0.3, 0.4]), "antialiased": antialiased}
+    got = gradients(g, cam, "wgpu", weights, **kw)
+    assert_as_accurate_as_float32(got, references(g, cam, weights, **kw), case)
+    extreme = len(EXTREMES[case])
+    if case == "clamped log-scales":
+        assert (got["log_scales"][0, [0, 2]] == 0).all() and got["log_scales"][0, 1] != 0
+    if case == "opacity near 0":
+        assert all((v[1] == 0).all() for v in got.values())  # the culled one
+    if not (case == "sub-pixel" and antialiased):
+        assert float(torch.linalg.norm(got["means"][:extreme])) > 0, "the extreme one is seen"
+
+
+@pytest.mark.parametrize("case", list(EXTREMES))
+def test_reference_gradients_at_the_extremes_match_finite_differences(case: str) -> None:
+    # The float64 reference's autograd is the exact derivative of its forward; checked
+    # here against finite differences where the extremes bend the maths (clamps, cuts).
+    g = gaussians(EXTREMES[case] + ORDINARY[:1]).to(torch.float64)
+    cam = Camera.from_fov(70.0, 16, 12)
+    weights = [w.double() for w in loss_weights(16, 12, seed=9)]
+    names = list(g.tensors())
+
+    def loss(*tensors: torch.Tensor) -> torch.Tensor:
+        gs = Gaussians(**dict(zip(names, tensors, strict=True)))
+        return weighted_loss(render(gs, cam, backend="torch", antialiased=True), weights)
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in g.tensors().values())
+    # A scale of e^8 puts ~1e9 px² in the covariance: the float64 forward's rounding then
+    # swamps differences of a 1e-6 step (they drift by 1e-3 at 1e-6, by 1e-5 at 1e-4).
+    eps = 1e-4 if case == "clamped log-scales" else 1e-6
+    assert torch.autograd.gradcheck(loss, inputs, eps=eps, atol=1e-5, rtol=1e-3)
 
 
 def test_reference_gradients_match_finite_differences() -> None:
@@ -218,8 +553,9 @@ def test_invalid_input_raises() -> None:
 
 def test_adapter_info_names_the_adapter() -> None:
     info = adapter_info()
-    assert set(info) == {"name", "backend", "device_type", "driver"}
+    assert set(info) == {"name", "backend", "device_type", "driver", "subgroups", "float_atomics"}
     assert info["name"]
+    assert info["subgroups"] in ("yes", "no") and info["float_atomics"] in ("yes", "no")
 
 
 def test_adapter_preference_that_matches_nothing_is_a_clear_error() -> None:

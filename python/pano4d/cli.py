@@ -264,6 +264,14 @@ def render_command(
 def train(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
     backend: Annotated[Backend, typer.Option(help="Rasteriser.")] = "wgpu",
+    trainer: Annotated[
+        str | None,
+        typer.Option(
+            help="resident: the Gaussians, losses and Adam stay on the GPU (default with "
+            "wgpu); torch: the torch reference, losses and Adam on the host (the only choice "
+            "with --backend torch)."
+        ),
+    ] = None,
     checkpoint_every: Annotated[
         int, typer.Option(min=1, help="Optimisation steps between checkpoints.")
     ] = CHECKPOINT_EVERY,
@@ -272,10 +280,17 @@ def train(
 
     Checkpoints after every stage; run the same command again to resume after a kill."""
     from pano4d.config import load_config
+    from pano4d.lift.pipeline import trainer_for
     from pano4d.train import run_train
 
     cfg = load_config(scene)
-    metrics = run_train(cfg, render_backend=backend, checkpoint_every=checkpoint_every)
+    try:
+        kind = trainer_for(backend, trainer)
+    except ValueError as e:
+        fail(f"--trainer: {e}")
+    metrics = run_train(
+        cfg, render_backend=backend, trainer=kind, checkpoint_every=checkpoint_every
+    )
     console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
     console.print_json(data=metrics)
 

@@ -27,7 +27,7 @@ from typing import Any
 from pano4d.config import SceneConfig, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints, TrainError
 from pano4d.lift.export import export
-from pano4d.lift.pipeline import StepHook, frame_suffix, lift
+from pano4d.lift.pipeline import StepHook, frame_suffix, lift, trainer_for
 from pano4d.progress import Bars
 
 KILL_AT_ENV = "PANO4D_TEST_KILL_AT"
@@ -39,16 +39,20 @@ def run_train(
     render_backend: str = "wgpu",
     on_step: StepHook | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    trainer: str | None = None,
 ) -> dict[str, Any]:
     """Run ``cfg`` end to end (resuming from checkpoints); returns the metrics written.
 
     ``on_step(stage, step)`` is called after every step of every stage (what a step is:
     ``lift.pipeline.StepHook``); without one, ``PANO4D_TEST_KILL_AT`` may set one.
     ``checkpoint_every``: optimisation steps between checkpoints (stages are always
-    checkpointed when done).
+    checkpointed when done). ``trainer``: "resident" (the training loop on the GPU) or
+    "torch" (the torch reference); by default the resident one with the wgpu rasteriser,
+    the torch one with the torch one.
     """
     if checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be ≥ 1, got {checkpoint_every}")
+    trainer = trainer_for(render_backend, trainer)
     on_step = on_step if on_step is not None else kill_hook_from_env()
     out = Path(cfg.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -70,7 +74,9 @@ def run_train(
                     f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
                 )
         animate_seconds = time.perf_counter() - start
-        lifted = lift(cfg, frames_dir, checkpoints, bars, render_backend, on_step, animate_seconds)
+        lifted = lift(
+            cfg, frames_dir, checkpoints, bars, render_backend, trainer, on_step, animate_seconds
+        )
         return export(lifted, on_step)
 
 

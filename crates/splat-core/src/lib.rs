@@ -6,6 +6,7 @@
 //! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
 //! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).
 //! - [`raster`]: the wgpu compute rasteriser (forward and backward).
+//! - [`train`]: the lifting phase's training loop resident on the device.
 //!
 //! Python bindings live in [`python`] behind the `python` feature.
 
@@ -14,6 +15,7 @@ pub mod gaussians;
 pub mod ply;
 pub mod ply4d;
 pub mod raster;
+pub mod train;
 
 #[cfg(feature = "python")]
 mod python;

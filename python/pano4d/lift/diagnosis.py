@@ -19,9 +19,10 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, SupportsFloat
 
 import numpy as np
 import OpenImageIO as oiio
@@ -74,7 +75,7 @@ class TrainLog:
     losses: list[dict[str, float]] = field(default_factory=list)  # {"step", term: value}
     densify: list[DensifyStats] = field(default_factory=list)
 
-    def record_loss(self, step: int, terms: dict[str, float]) -> None:
+    def record_loss(self, step: int, terms: Mapping[str, SupportsFloat]) -> None:
         unknown = set(terms) - set(TERMS)
         if unknown:
             raise ValueError(f"unknown loss terms {sorted(unknown)}; known: {list(TERMS)}")

@@ -15,8 +15,10 @@ Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and one at
 
 Densify and prune (when enabled) run every ``densify_every`` steps between 20 % and 70 % of
 the iterations: prune near-transparent Gaussians, split those with the largest accumulated
-position gradient into two smaller ones, and keep the count within ``max_gaussians``.
-For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last step's loss terms in
+position gradient into two smaller ones, and keep the count within ``max_gaussians``
+(``split_and_prune``, shared with the resident trainer). Adam's moments move with their
+Gaussians: survivors keep theirs, split children start at zero, the step count goes on.
+For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last loss terms in
 ``last_terms`` and its last densify-and-prune's counts in ``last_densify``.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
 Adam moments, the view generator, the step), so a resumed run continues bit-for-bit.
@@ -25,6 +27,7 @@ Adam moments, the view generator, the step), so a resumed run continues bit-for-
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -37,10 +40,12 @@ from pano4d.gaussians import Gaussians
 from pano4d.lift.diagnosis import DensifyStats
 
 LAMBDA_RGB = 1.0
+RGB_L1, RGB_SSIM = 0.8, 0.2  # L_rgb's mix
 SSIM_WINDOW = 11
 SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iterations, α)
 PRUNE_OPACITY = 0.005
 SPLIT_FACTOR = 1.6
+ADAM_EPS = 1e-15
 LEARNING_RATES = {
     "offsets": 1e-3,  # in units of each Gaussian's initial depth
     "log_scales": 5e-3,
@@ -88,9 +93,17 @@ class Knobs:
 
 
 def ssim_loss(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """1 − weighted mean SSIM of (h, w, 3) images."""
+    """1 − weighted mean SSIM of (h, w, 3) images.
+
+    Pixels of weight 0 take no part: an 11-pixel window reaches across the mask's edge, so
+    there the rendered value stands in for the target and carries no gradient. Otherwise the
+    static set would learn from what the moving region shows (tests/test_split.py)."""
     import kornia
 
+    unsupervised = (weight <= 0)[..., None]
+    fixed = rendered.detach()
+    rendered = torch.where(unsupervised, fixed, rendered)
+    target = torch.where(unsupervised, fixed, target)
     window = min(SSIM_WINDOW, (min(rendered.shape[:2]) // 2) * 2 - 1)
     ssim_map = kornia.metrics.ssim(
         rendered.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], window
@@ -115,6 +128,96 @@ def sem_alpha(step: int, iterations: int) -> float:
     return alpha
 
 
+def densify_due(knobs: Knobs, step: int) -> bool:
+    """Whether densification runs after ``step`` steps: every ``densify_every`` steps
+    between 20 % and 70 % of the iterations, when enabled."""
+    if not knobs.densify or knobs.densify_every <= 0:
+        return False
+    return (
+        0.2 * knobs.iterations <= step <= 0.7 * knobs.iterations
+        and step % knobs.densify_every == 0
+    )
+
+
+@dataclass
+class Densified:
+    """The Gaussians after one densify-and-prune, with where each row came from."""
+
+    gaussians: Gaussians
+    unit: torch.Tensor  # (M,) offset units, carried from the source Gaussian
+    source: torch.Tensor  # (M,) row of the Gaussian before, that each row comes from
+    child: torch.Tensor  # (M,) bool: one of the two children of a split
+    stats: DensifyStats  # the counts, for the run's diagnosis
+
+    def carry(self, state: torch.Tensor) -> torch.Tensor:
+        """Per-Gaussian optimiser state (one row per Gaussian) moved with the Gaussians:
+        survivors keep theirs, split children start at zero (as 3DGS's densification)."""
+        rows = state[self.source]
+        child = self.child.reshape(-1, *([1] * (state.dim() - 1)))
+        return torch.where(child, torch.zeros_like(rows), rows)
+
+
+def split_and_prune(
+    g: Gaussians,
+    unit: torch.Tensor,
+    grad_accum: torch.Tensor,
+    grad_count: torch.Tensor,
+    max_gaussians: int,
+    generator: torch.Generator,
+    step: int,
+) -> Densified:
+    """One densify-and-prune (both trainers call this, after ``step`` steps): drop
+    near-transparent Gaussians, split those with the largest mean position gradient into two
+    smaller jittered children, and keep at most ``max_gaussians`` (the most opaque)."""
+    keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
+    mean_grad = grad_accum / grad_count.clamp(min=1)
+    room = max_gaussians - int(keep.sum())
+    split = torch.zeros_like(keep)
+    candidates = keep & (mean_grad > 0)
+    share = int(candidates.sum()) // 10  # at most a tenth of the candidates split at once
+    if room > 0:
+        count = min(room, share)
+        if count > 0:
+            score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
+            split[torch.topk(score, count).indices] = True
+    rows = torch.arange(len(g), device=g.device)
+    survivors = keep & ~split
+    parts, units, sources = [g[survivors]], [unit[survivors]], [rows[survivors]]
+    children = [torch.zeros(int(survivors.sum()), dtype=torch.bool, device=g.device)]
+    if split.any():
+        parent = g[split]
+        sigma = parent.log_scales.exp()
+        for _ in range(2):
+            jitter = torch.randn(parent.means.shape, generator=generator)
+            parts.append(
+                Gaussians(
+                    parent.means + jitter.to(g.device) * sigma * 0.5,
+                    parent.log_scales - math.log(SPLIT_FACTOR),
+                    parent.quats,
+                    parent.opacity_logits,
+                    parent.sh,
+                )
+            )
+            units.append(unit[split])
+            sources.append(rows[split])
+            children.append(torch.ones(len(parent), dtype=torch.bool, device=g.device))
+    merged = Gaussians.cat(parts)
+    merged_units, source, child = torch.cat(units), torch.cat(sources), torch.cat(children)
+    grown = len(merged)
+    if len(merged) > max_gaussians:
+        top = torch.topk(merged.opacity_logits, max_gaussians).indices
+        merged, merged_units = merged[top], merged_units[top]
+        source, child = source[top], child[top]
+    stats = DensifyStats(
+        step=step, before=len(g), pruned=int((~keep).sum()), split=int(split.sum()),
+        clipped=grown - len(merged), after=len(merged), budget=max_gaussians,
+        candidates=int(candidates.sum()),
+        threshold=float(mean_grad[split].min()) if split.any() else None,
+        limit="share" if share <= room else "budget",
+    )  # fmt: skip
+    return Densified(merged, merged_units, source, child, stats)
+
+
 def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     """The same camera translated by ``offset`` (3,) in world space."""
     w2c = camera.world_to_cam.clone()
@@ -122,8 +225,10 @@ def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     return Camera(camera.K, w2c, camera.width, camera.height)
 
 
-class GaussianTrainer:
-    """Optimises one set of Gaussians (optionally against a frozen context)."""
+class Trainer(ABC):
+    """What both trainers share (``GaussianTrainer`` here, ``ResidentTrainer`` in
+    lift.resident): their inputs, the step count, the seeded generator that draws each
+    step's view, and the loop; a lifting stage can use either."""
 
     def __init__(
         self,
@@ -148,8 +253,50 @@ class GaussianTrainer:
         self.step = 0
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
-        self.last_terms: dict[str, torch.Tensor] = {}  # diagnosis.TERMS names, detached
+        # For the diagnosis: diagnosis.TERMS names → values (tensors, read when logged).
+        self.last_terms: dict[str, float | torch.Tensor] = {}
         self.last_densify: DensifyStats | None = None
+        self._start(gaussians)
+
+    @abstractmethod
+    def _start(self, gaussians: Gaussians) -> None:
+        """Sets up the optimisation of ``gaussians`` (called once by __init__)."""
+
+    def next_view(self) -> int:
+        """The view of the next step, drawn from the seeded generator."""
+        return int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+
+    @abstractmethod
+    def train_step(self) -> float:
+        """One step; returns the loss (the resident trainer's last one read back)."""
+
+    @abstractmethod
+    def result(self) -> Gaussians:
+        """The trained Gaussians."""
+
+    @abstractmethod
+    def densify_and_prune(self) -> None: ...
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def run(self, on_step: Callable[[Trainer], None] | None = None) -> Gaussians:
+        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
+        while self.step < self.knobs.iterations:
+            self.train_step()
+            if on_step is not None:
+                on_step(self)
+        return self.result()
+
+
+class GaussianTrainer(Trainer):
+    """Optimises one set of Gaussians (optionally against a frozen context) in torch."""
+
+    def _start(self, gaussians: Gaussians) -> None:
         self._set_parameters(gaussians)
 
     # --- parameters ------------------------------------------------------------------------
@@ -173,7 +320,7 @@ class GaussianTrainer:
             p.requires_grad_(True)
         self.optimiser = torch.optim.Adam(
             [{"params": [p], "lr": LEARNING_RATES[k], "name": k} for k, p in self.params.items()],
-            eps=1e-15,
+            eps=ADAM_EPS,
         )
         self.grad_accum = torch.zeros(len(g), device=self.device)
         self.grad_count = torch.zeros(len(g), device=self.device)
@@ -206,7 +353,7 @@ class GaussianTrainer:
         wsum = weight.sum().clamp(min=1e-6)
         l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
         d_ssim = ssim_loss(rgb, target, weight)
-        loss = LAMBDA_RGB * (0.8 * l1 + 0.2 * d_ssim)
+        loss = LAMBDA_RGB * (RGB_L1 * l1 + RGB_SSIM * d_ssim)
         terms = {"l1": l1, "d_ssim": d_ssim}
         if k.lambda_temporal > 0 and v.previous is not None:
             temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum
@@ -230,8 +377,7 @@ class GaussianTrainer:
         return loss
 
     def train_step(self) -> float:
-        index = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
-        loss = self.loss_at(index)
+        loss = self.loss_at(self.next_view())
         self.optimiser.zero_grad(set_to_none=True)
         loss.backward()
         grad = self.params["offsets"].grad
@@ -242,77 +388,35 @@ class GaussianTrainer:
         self.optimiser.step()
         self.step += 1
         self.last_loss = float(loss.detach())
-        if self._densify_due():
+        if densify_due(self.knobs, self.step):
             self.densify_and_prune()
         return self.last_loss
 
-    def run(
-        self,
-        on_step: Callable[[GaussianTrainer], None] | None = None,
-    ) -> Gaussians:
-        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
-        while self.step < self.knobs.iterations:
-            self.train_step()
-            if on_step is not None:
-                on_step(self)
-        return self.result()
-
     # --- densify and prune ------------------------------------------------------------------
-    def _densify_due(self) -> bool:
-        k = self.knobs
-        if not k.densify or k.densify_every <= 0:
-            return False
-        return (
-            0.2 * k.iterations <= self.step <= 0.7 * k.iterations
-            and self.step % k.densify_every == 0
-        )
-
     def densify_and_prune(self) -> None:
         with torch.no_grad():
-            g = self.result()
-            unit = self.unit
-            keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
-            mean_grad = self.grad_accum / self.grad_count.clamp(min=1)
-            room = self.knobs.max_gaussians - int(keep.sum())
-            split = torch.zeros_like(keep)
-            candidates = keep & (mean_grad > 0)
-            share = int(candidates.sum()) // 10
-            if room > 0:
-                count = min(room, share)
-                if count > 0:
-                    score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
-                    split[torch.topk(score, count).indices] = True
-            parts = [g[keep & ~split]]
-            units = [unit[keep & ~split]]
-            if split.any():
-                parent = g[split]
-                sigma = parent.log_scales.exp()
-                for _ in range(2):
-                    jitter = torch.randn(parent.means.shape, generator=self.generator)
-                    parts.append(
-                        Gaussians(
-                            parent.means + jitter.to(self.device) * sigma * 0.5,
-                            parent.log_scales - math.log(SPLIT_FACTOR),
-                            parent.quats,
-                            parent.opacity_logits,
-                            parent.sh,
-                        )
-                    )
-                    units.append(unit[split])
-            merged, merged_units = Gaussians.cat(parts), torch.cat(units)
-            grown = len(merged)
-            if len(merged) > self.knobs.max_gaussians:
-                top = torch.topk(merged.opacity_logits, self.knobs.max_gaussians).indices
-                merged, merged_units = merged[top], merged_units[top]
-            self.last_densify = DensifyStats(
-                step=self.step, before=len(g), pruned=int((~keep).sum()),
-                split=int(split.sum()), clipped=grown - len(merged), after=len(merged),
-                budget=self.knobs.max_gaussians, candidates=int(candidates.sum()),
-                threshold=float(mean_grad[split].min()) if split.any() else None,
-                limit="share" if share <= room else "budget",
-            )  # fmt: skip
-            # Offsets restart from zero at the new positions; Adam's moments restart too.
-            self._set_parameters(merged, merged.means.clone(), merged_units)
+            d = split_and_prune(
+                self.result(),
+                self.unit,
+                self.grad_accum,
+                self.grad_count,
+                self.knobs.max_gaussians,
+                self.generator,
+                self.step,
+            )
+            self.last_densify = d.stats
+            before = {name: self.optimiser.state.get(p) for name, p in self.params.items()}
+            # Offsets restart from zero at the new positions; Adam's moments (kept in offset
+            # units, and each Gaussian keeps its unit) move with their Gaussians.
+            self._set_parameters(d.gaussians, d.gaussians.means.clone(), d.unit)
+            for name, p in self.params.items():
+                state = before[name]
+                if state:
+                    self.optimiser.state[p] = {
+                        "step": state["step"].clone(),
+                        "exp_avg": d.carry(state["exp_avg"]),
+                        "exp_avg_sq": d.carry(state["exp_avg_sq"]),
+                    }
 
     # --- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

@@ -47,7 +47,15 @@ from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
-from pano4d.lift.optimize import FeatureModel, GaussianTrainer, Knobs, RenderFn, TrainViews
+from pano4d.lift.optimize import (
+    FeatureModel,
+    GaussianTrainer,
+    Knobs,
+    RenderFn,
+    Trainer,
+    TrainViews,
+)
+from pano4d.lift.resident import ResidentTrainer
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
@@ -58,6 +66,24 @@ from pano4d.sphere import view_layout
 # align (step: the iteration within the frame), static and dynamic stages (step: steps
 # done) and a file of the export (step: files written). Tests interrupt a run with it.
 StepHook = Callable[[str, int], None]
+# The optimisers: "resident" keeps the Gaussians, Adam and the losses on the GPU (wgpu);
+# "torch" is GaussianTrainer, the reference (losses and Adam in torch, any rasteriser).
+TRAINERS: dict[str, type[Trainer]] = {"resident": ResidentTrainer, "torch": GaussianTrainer}
+
+
+def trainer_for(render_backend: str, trainer: str | None) -> str:
+    """The trainer to use: ``trainer``, or by default the resident one on wgpu and the torch
+    one with the torch rasteriser (the resident loop renders with wgpu only)."""
+    if trainer is None:
+        return "resident" if render_backend == "wgpu" else "torch"
+    if trainer not in TRAINERS:
+        raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {trainer!r}")
+    if trainer == "resident" and render_backend != "wgpu":
+        raise ValueError(
+            f"the resident trainer renders with wgpu, not the {render_backend!r} rasteriser: "
+            "use the torch trainer with that backend"
+        )
+    return trainer
 
 
 # --- 1. inputs -------------------------------------------------------------------------------
@@ -73,6 +99,7 @@ class LiftInputs:
     moving: torch.Tensor  # (H, W) bool, the grown moving region at the working resolution
     full_width: int  # the input panorama's width
     render_backend: str  # "wgpu" | "torch"
+    trainer: str  # a key of TRAINERS
 
     def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
         from pano4d.render import render
@@ -130,7 +157,9 @@ def moving_region(
     return grow(moving_in_video(frames, regions[0, 0] > 0))
 
 
-def prepare(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftInputs:
+def prepare(
+    cfg: SceneConfig, frames_dir: Path, render_backend: str, trainer: str
+) -> LiftInputs:
     """The frames at the working resolution and what moves in them (``moving_region``)."""
     suffix = frame_suffix(cfg)
     first = read_image(frames_dir / f"0000{suffix}")
@@ -147,6 +176,7 @@ def prepare(cfg: SceneConfig, frames_dir: Path, render_backend: str) -> LiftInpu
         moving=moving_region(cfg, frames, (full_w, full_h)),
         full_width=full_w,
         render_backend=render_backend,
+        trainer=trainer,
     )
 
 
@@ -251,6 +281,7 @@ def initial_sets(inputs: LiftInputs, depth0: torch.Tensor) -> InitialSets:
 
 # --- 5. and 6. optimisation ------------------------------------------------------------------
 def make_trainer(
+    kind: str,
     gaussians: Gaussians,
     views: TrainViews,
     knobs: Knobs,
@@ -258,11 +289,27 @@ def make_trainer(
     context: Gaussians | None = None,
     features: FeatureModel | None = None,
     seed: int = 0,
-) -> GaussianTrainer:
-    """The optimiser of one set of Gaussians: the one place the stages build one."""
-    return GaussianTrainer(
+) -> Trainer:
+    """The optimiser of one set of Gaussians: the one place the stages build one. ``kind`` is
+    a key of TRAINERS; both trainers take the same arguments and views (same seed, same
+    views in the same order)."""
+    return TRAINERS[kind](
         gaussians, views, knobs, render, context=context, features=features, seed=seed
     )
+
+
+def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> None:
+    """Continue ``trainer`` from a stage checkpoint's state, if it holds one; a checkpoint of
+    the other trainer is refused (their states differ) with what to do."""
+    if "trainer" not in state:
+        return
+    written = state.get("trainer_kind")
+    if written != kind:
+        raise TrainError(
+            f"{path}: written by the {written} trainer, this run uses the {kind} one; rerun "
+            f"with --trainer {written}, or delete the file to restart that stage"
+        )
+    trainer.load_state_dict(state["trainer"])
 
 
 def trainer_knobs(knobs: PresetKnobs, iterations: int, budget: int, median_depth: float) -> Knobs:
@@ -297,7 +344,8 @@ def views_of_frame(
 
 
 def run_trainer(
-    trainer: GaussianTrainer,
+    trainer: Trainer,
+    kind: str,
     log: TrainLog,
     checkpoints: Checkpoints,
     name: str,
@@ -305,19 +353,20 @@ def run_trainer(
     on_step: StepHook | None,
     extra: Callable[[], dict[str, Any]],
 ) -> Gaussians:
-    """Run a trainer with a progress bar, its loss terms (every LOG_EVERY steps and at the
-    last) and densify-and-prunes recorded in ``log``, and a checkpoint every
+    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOG_EVERY steps
+    and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
     ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too)."""
     task = bars.task(log.name, trainer.knobs.iterations, trainer.step)
 
-    def step(tr: GaussianTrainer) -> None:
+    def step(tr: Trainer) -> None:
         task.update(tr.step, loss=tr.last_loss)
         if tr.step % LOG_EVERY == 0 or tr.step == tr.knobs.iterations:
             log.record_loss(tr.step, tr.last_terms)
         if tr.last_densify is not None and tr.last_densify.step == tr.step:
             log.densify.append(tr.last_densify)
         if tr.step % checkpoints.every == 0 and tr.step < tr.knobs.iterations:
-            checkpoints.save(name, {**extra(), "trainer": tr.state_dict()})
+            state = {**extra(), "trainer": tr.state_dict(), "trainer_kind": kind}
+            checkpoints.save(name, state)
         if on_step is not None:
             on_step(name, tr.step)
 
@@ -356,6 +405,7 @@ def fit_static(
         lambda c: (inputs.moving_in_view(c) < 0.5).to(torch.float32),
     )
     trainer = make_trainer(
+        inputs.trainer,
         initial,
         views,
         trainer_knobs(knobs, iterations, knobs.max_gaussians, median_depth),
@@ -365,7 +415,7 @@ def fit_static(
     )
     log = TrainLog("static", len(initial))
     if "trainer" in state:
-        trainer.load_state_dict(state["trainer"])
+        resume(trainer, state, inputs.trainer, checkpoints.path("static"))
         log = TrainLog.from_dict(state["log"])
     checkpoints.resumed("static", step=trainer.step)
     start, first_step = time.perf_counter(), trainer.step
@@ -374,7 +424,7 @@ def fit_static(
         return float(state["seconds"]) + time.perf_counter() - start
 
     result = run_trainer(
-        trainer, log, checkpoints, "static", bars, on_step,
+        trainer, inputs.trainer, log, checkpoints, "static", bars, on_step,
         lambda: {"seconds": seconds(), "log": log.to_dict()},
     )  # fmt: skip
     per_step = (time.perf_counter() - start) / max(1, trainer.step - first_step)
@@ -443,6 +493,7 @@ def fit_dynamic(
                 views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
         iterations = dynamic_iterations(full, t)
         trainer = make_trainer(
+            inputs.trainer,
             initial if t == 0 else done[-1],
             views,
             trainer_knobs(inputs.knobs, iterations, budget, median_depth),
@@ -452,12 +503,14 @@ def fit_dynamic(
             seed=inputs.cfg.seed + 1 + t,
         )
         if "trainer" in state and state.get("t") == t:
-            trainer.load_state_dict(state["trainer"])
+            resume(trainer, state, inputs.trainer, checkpoints.path("dynamic"))
             checkpoints.resumed("dynamic", t=t, step=trainer.step)
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
         log = logs[t]
-        done.append(run_trainer(trainer, log, checkpoints, "dynamic", bars, on_step, saved))
+        done.append(
+            run_trainer(trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved)
+        )
         checkpoints.save("dynamic", saved())
     steps = sum(dynamic_iterations(full, t) for t in range(total))
     return DynamicSets(done, seconds(), seconds() / steps, logs)
@@ -483,11 +536,13 @@ def lift(
     checkpoints: Checkpoints,
     bars: Bars,
     render_backend: str,
+    trainer: str,
     on_step: StepHook | None,
     animate_seconds: float,
 ) -> Lifted:
-    """Every stage in order on the animation in ``frames_dir``."""
-    inputs = prepare(cfg, frames_dir, render_backend)
+    """Every stage in order on the animation in ``frames_dir``; ``trainer`` is a key of
+    TRAINERS."""
+    inputs = prepare(cfg, frames_dir, render_backend, trainer)
     view_depth = estimate_depth(inputs, checkpoints, bars, on_step)
     alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)
     initial = initial_sets(inputs, alignment.depths[0])

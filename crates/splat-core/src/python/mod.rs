@@ -4,11 +4,13 @@ use pyo3::prelude::*;
 
 mod io;
 mod raster;
+mod train;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     io::register(m)?;
     raster::register(m)?;
+    train::register(m)?;
     Ok(())
 }

@@ -16,7 +16,7 @@ use crate::raster::{GpuContext, RasterError, RenderSettings, Renderer};
 
 static RENDERER: OnceLock<Mutex<Option<Renderer>>> = OnceLock::new();
 
-fn to_py(e: RasterError) -> PyErr {
+pub(super) fn to_py(e: RasterError) -> PyErr {
     match e {
         RasterError::InvalidInput(_) => PyValueError::new_err(e.to_string()),
         _ => PyRuntimeError::new_err(e.to_string()),
@@ -24,7 +24,7 @@ fn to_py(e: RasterError) -> PyErr {
 }
 
 /// Runs `f` on the shared renderer, creating it on first use.
-fn with_renderer<T>(
+pub(super) fn with_renderer<T>(
     f: impl FnOnce(&mut Renderer) -> Result<T, RasterError>,
 ) -> Result<T, RasterError> {
     let cell = RENDERER.get_or_init(|| Mutex::new(None));
@@ -37,7 +37,7 @@ fn with_renderer<T>(
     f(guard.as_mut().expect("created above"))
 }
 
-fn camera_from(
+pub(super) fn camera_from(
     k: &PyReadonlyArray2<'_, f64>,
     w2c: &PyReadonlyArray2<'_, f64>,
     width: u32,
@@ -55,7 +55,7 @@ fn camera_from(
     Ok(Camera::from_matrices(kk, ww, width, height))
 }
 
-fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResult<&'a [f32]> {
+pub(super) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResult<&'a [f32]> {
     a.as_slice()
         .map_err(|_| PyValueError::new_err(format!("{name} must be a C-contiguous float32 array")))
 }
@@ -151,17 +151,30 @@ fn render_backward<'py>(
     Ok(out)
 }
 
-/// The adapter the renderer uses: {name, backend, device_type, driver}.
+/// The adapter the renderer uses: {name, backend, device_type, driver} and which of the
+/// backward's paths it takes: {subgroups, float_atomics} ("yes" or "no").
 #[pyfunction]
 fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    let summary = py
-        .detach(|| with_renderer(|r| Ok(r.context().adapter.clone())))
+    let (summary, subgroups, float_atomics) = py
+        .detach(|| {
+            with_renderer(|r| {
+                let ctx = r.context();
+                Ok((
+                    ctx.adapter.clone(),
+                    ctx.has_subgroups(),
+                    ctx.has_float_atomics(),
+                ))
+            })
+        })
         .map_err(to_py)?;
+    let yes_no = |on: bool| if on { "yes" } else { "no" };
     let out = PyDict::new(py);
     out.set_item("name", summary.name)?;
     out.set_item("backend", summary.backend)?;
     out.set_item("device_type", summary.device_type)?;
     out.set_item("driver", summary.driver)?;
+    out.set_item("subgroups", yes_no(subgroups))?;
+    out.set_item("float_atomics", yes_no(float_atomics))?;
     Ok(out)
 }
 

@@ -1,15 +1,15 @@
 //! The backward pass: gradients of a loss w.r.t. the Gaussians, given its gradient w.r.t.
 //! the forward's output (docs/rasterizer.md, "Backward").
 
-use super::buffers::{check_intersections, GrowBuffer};
 use super::kernels::{bind_group, div_ceil, run_linear};
-use super::renderer::{pop_error, Frame, RenderSettings, Renderer, PIXEL_CHANNELS};
+use super::renderer::{Frame, RenderSettings, Renderer, PIXEL_CHANNELS};
 use super::RasterError;
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
 
-/// Floats per intersection gradient (rasterize_backward.wgsl).
-const ISECT_GRAD_FLOATS: u64 = 10;
+/// Floats of each Gaussian's 2D gradient sums: mean2d (2), conic (3), rgb (3), opacity,
+/// depth (rasterize_backward.wgsl).
+const GAUSSIAN_GRAD_FLOATS: u64 = 10;
 
 /// Gradients in the layout of [`SceneInput`].
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -41,7 +41,6 @@ impl Renderer {
             )));
         }
         let scene = self.upload(scene)?;
-        let frame = self.encode_frame(scene, camera, settings)?;
         let device = self.ctx.device.clone();
         let v_buf = self
             .buffers
@@ -51,16 +50,15 @@ impl Renderer {
         self.ctx
             .queue
             .write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
-        let n = frame.params.num_gaussians as u64;
-        let k = frame.params.sh_coeffs as u64;
-        let grad_floats = BASE_FLOATS as u64 * n + 3 * k * n;
-        let grads = self.buffers.grads.get(&device, 4 * grad_floats).clone();
-        self.encode_backward(&frame, &v_buf, &grads)?;
-        let flat: Vec<f32> = if n == 0 {
-            Vec::new()
-        } else {
-            bytemuck::pod_collect_to_vec(&self.read_back(&grads, 4 * grad_floats)?)
-        };
+        let n = scene.len as u64;
+        let k = scene.sh_coeffs as u64;
+        let grad_bytes = 4 * (BASE_FLOATS as u64 * n + 3 * k * n);
+        let (_, flat) = self.render_and_read(&scene, camera, settings, |renderer, frame| {
+            let grads = renderer.buffers.grads.get(&device, grad_bytes).clone();
+            renderer.encode_backward(frame, &v_buf, &grads)?;
+            Ok(Some((grads, grad_bytes)))
+        })?;
+        let flat: Vec<f32> = bytemuck::pod_collect_to_vec(&flat);
         let n = n as usize;
         let k = k as usize;
         let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
@@ -81,29 +79,40 @@ impl Renderer {
     }
 
     /// Encodes and submits the backward of `frame` (the last [`Self::encode_frame`]):
-    /// `v_pixels` holds the loss's gradient w.r.t. the forward's H·W·5 output, and `grads`
-    /// receives the gradients in [`Gradients`]' order as one SoA buffer of
-    /// `BASE_FLOATS · n + 3 k n` floats. Nothing is read back: a training loop chains this
-    /// with its optimiser on the device.
-    pub(crate) fn encode_backward(
+    /// `v_pixels` holds the loss's gradient w.r.t. the forward's H·W·5 output (the layout
+    /// of [`Renderer::frame_pixels`]), and `grads` receives the gradients in [`Gradients`]' order as
+    /// one SoA buffer of `BASE_FLOATS · n + 3 k n` floats (sections of n, whatever the
+    /// scene's stride). Nothing is read back and nothing waits: a training loop chains this
+    /// with its optimiser on the device. Gradients are summed with atomics, so their float
+    /// rounding may differ between runs (docs/rasterizer.md, "Backward").
+    pub fn encode_backward(
         &mut self,
         frame: &Frame,
         v_pixels: &wgpu::Buffer,
         grads: &wgpu::Buffer,
     ) -> Result<(), RasterError> {
         let device = self.ctx.device.clone();
-        let n = frame.params.num_gaussians;
-        let b = &mut self.buffers;
-        check_intersections(&device, frame.num_intersections, 4 * ISECT_GRAD_FLOATS)?;
-        let m = frame.num_intersections as u64;
-        let isect_grads = b
-            .isect_grads
-            .get(&device, 4 * ISECT_GRAD_FLOATS * m)
+        let n = frame.params.num_gaussians as u64;
+        let k = frame.params.sh_coeffs as u64;
+        let (width, height) = frame.size();
+        let pixel_bytes = 4 * PIXEL_CHANNELS as u64 * width as u64 * height as u64;
+        let grad_bytes = 4 * (BASE_FLOATS as u64 * n + 3 * k * n);
+        if v_pixels.size() < pixel_bytes || grads.size() < grad_bytes {
+            return Err(RasterError::InvalidInput(format!(
+                "the backward of a {width}x{height} frame of {n} Gaussians needs a pixel \
+                 gradient of {pixel_bytes} bytes and room for {grad_bytes} bytes of \
+                 gradients, got {} and {}",
+                v_pixels.size(),
+                grads.size()
+            )));
+        }
+        let sums = self
+            .buffers
+            .gaussian_grads
+            .get(&device, 4 * GAUSSIAN_GRAD_FLOATS * n)
             .clone();
-        let get = |g: &GrowBuffer| g.buffer.clone().expect("allocated by encode_frame");
-        let depth_vals = get(&b.depth_vals[frame.depth_sorted]);
         let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.clear_buffer(&isect_grads, 0, None);
+        encoder.clear_buffer(&sums, 0, None);
         {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             pass.set_pipeline(&self.rasterize_backward);
@@ -111,14 +120,13 @@ impl Renderer {
                 &device,
                 &self.rasterize_backward,
                 &[
-                    (0, &b.params),
-                    (1, &get(&b.projected)),
-                    (2, &get(&b.isect_slots[frame.sorted])),
-                    (3, &get(&b.isect_gaussian)),
-                    (4, &get(&b.ranges)),
-                    (5, &get(&b.pixel_state)),
-                    (6, v_pixels),
-                    (7, &isect_grads),
+                    (0, &self.buffers.params),
+                    (1, &frame.projected),
+                    (2, &frame.sorted_gaussians),
+                    (3, &frame.ranges),
+                    (4, &frame.pixel_state),
+                    (5, v_pixels),
+                    (6, &sums),
                 ],
             );
             pass.set_bind_group(0, &group, &[]);
@@ -129,20 +137,16 @@ impl Renderer {
                     &device,
                     &self.project_backward,
                     &[
-                        (0, &b.params),
+                        (0, &self.buffers.params),
                         (1, &frame.scene.buffer),
-                        (2, &get(&b.tile_counts)),
-                        (3, &depth_vals),
-                        (4, &get(&b.offsets)),
-                        (5, &isect_grads),
-                        (6, grads),
+                        (2, &frame.tile_counts),
+                        (3, &sums),
+                        (4, grads),
                     ],
-                    div_ceil(n, 256),
+                    div_ceil(n as u32, 256),
                 );
             }
         }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        self.ctx.queue.submit([encoder.finish()]);
-        pop_error(scope)
+        self.submit(encoder)
     }
 }

@@ -1,12 +1,19 @@
 //! The renderer's reusable GPU buffers: each grows to the largest size a call has asked
 //! of it and is kept for the next call, so a training loop allocates nothing per step.
 
+use super::kernels::{plan_buffer, SortPlan};
 use super::renderer::RenderParams;
 use super::resident::binding_limit;
 use super::RasterError;
 
+/// Words of the renderer's status buffer (tiles.wgsl, `plan_intersections`): frames that
+/// overflowed and the most intersections of any frame (both counting only the frames of
+/// `encode_frame`, and only growing), then the last frame's intersections and whether it
+/// was drawn (1) or overflowed (0).
+pub(crate) const STATUS_WORDS: usize = 4;
+
 /// Errors when `m` intersections of `bytes_each` exceed one storage binding.
-pub(super) fn check_intersections(
+pub(super) fn ensure_intersections_fit(
     device: &wgpu::Device,
     m: u32,
     bytes_each: u64,
@@ -38,17 +45,19 @@ impl GrowBuffer {
     }
 
     pub(super) fn get(&mut self, device: &wgpu::Device, bytes: u64) -> &wgpu::Buffer {
-        // Runtime-sized arrays need at least one element bound, whatever n is.
-        let bytes = bytes.max(256).next_multiple_of(16);
+        // Runtime-sized arrays need at least one element bound, whatever n is; sizes are
+        // multiples of 4 (copies), not more, or one just under the limit would pass it.
+        let align = wgpu::COPY_BUFFER_ALIGNMENT;
+        let bytes = bytes.max(256).next_multiple_of(align);
         let big_enough = self.buffer.as_ref().is_some_and(|b| b.size() >= bytes);
         if !big_enough {
             // Headroom so that slowly growing scenes do not reallocate every call, but none
             // past what one binding may hold: a buffer just under the limit must still bind.
-            let limit = binding_limit(device).max(bytes);
-            let size = (bytes + bytes / 4).min(limit);
+            let limit = (binding_limit(device) / align * align).max(bytes);
+            let size = (bytes + bytes / 4).next_multiple_of(align).min(limit);
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
-                size: size.next_multiple_of(16),
+                size,
                 usage: self.usage,
                 mapped_at_creation: false,
             }));
@@ -67,14 +76,22 @@ pub(super) struct Buffers {
     pub(super) offsets: GrowBuffer,
     pub(super) sort_counts: GrowBuffer,
     pub(super) block_sums: GrowBuffer,
+    /// Sizes of the depth sort and the offsets' scan (from the host), and of the tile sort
+    /// and its ranges (from the GPU).
+    pub(super) depth_plan: SortPlan,
+    pub(super) offsets_plan: wgpu::Buffer,
+    pub(super) tile_plan: SortPlan,
+    pub(super) status: wgpu::Buffer,
+    /// The per-intersection arrays (tile id, Gaussian id), sized by
+    /// `Renderer::reserve_intersections`.
     pub(super) isect_keys: [GrowBuffer; 2],
-    pub(super) isect_slots: [GrowBuffer; 2],
-    pub(super) isect_gaussian: GrowBuffer,
+    pub(super) isect_gaussians: [GrowBuffer; 2],
     pub(super) ranges: GrowBuffer,
     pub(super) pixels: GrowBuffer,
     pub(super) pixel_state: GrowBuffer,
     pub(super) v_pixels: GrowBuffer,
-    pub(super) isect_grads: GrowBuffer,
+    /// Each Gaussian's ten 2D gradient sums (rasterize_backward.wgsl).
+    pub(super) gaussian_grads: GrowBuffer,
     pub(super) grads: GrowBuffer,
     pub(super) readback: GrowBuffer,
 }
@@ -98,14 +115,22 @@ impl Buffers {
             offsets: GrowBuffer::new("offsets", copy),
             sort_counts: GrowBuffer::new("sort counts", copy),
             block_sums: GrowBuffer::new("block sums", copy),
+            depth_plan: SortPlan::new(device, "depth sort plan"),
+            offsets_plan: plan_buffer(device, "offsets scan plan"),
+            tile_plan: SortPlan::new(device, "tile sort plan"),
+            status: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("render status"),
+                size: 4 * STATUS_WORDS as u64,
+                usage: wgpu::BufferUsages::STORAGE | copy,
+                mapped_at_creation: false,
+            }),
             isect_keys: pair("intersection keys"),
-            isect_slots: pair("intersection slots"),
-            isect_gaussian: GrowBuffer::new("intersection gaussian", copy),
+            isect_gaussians: pair("intersection gaussians"),
             ranges: GrowBuffer::new("tile ranges", copy),
             pixels: GrowBuffer::new("pixels", copy),
             pixel_state: GrowBuffer::new("pixel state", copy),
             v_pixels: GrowBuffer::new("pixel gradients", copy),
-            isect_grads: GrowBuffer::new("intersection gradients", copy),
+            gaussian_grads: GrowBuffer::new("gaussian 2d gradients", copy),
             grads: GrowBuffer::new("gradients", copy),
             readback: GrowBuffer {
                 label: "readback",

@@ -9,8 +9,10 @@
 use super::RasterError;
 
 pub const ADAPTER_ENV: &str = "PANO4D_ADAPTER";
-/// Set to 0 to leave subgroup operations off (see [`GpuContext::new`]).
+/// Set to 0 to leave subgroup operations off (see [`DeviceOptions::from_env`]).
 pub const SUBGROUPS_ENV: &str = "PANO4D_SUBGROUPS";
+/// Set to 0 to leave native float atomics off (see [`DeviceOptions::from_env`]).
+pub const FLOAT_ATOMICS_ENV: &str = "PANO4D_FLOAT_ATOMICS";
 
 const NO_DRIVER_HINT: &str = "no Vulkan/Metal/DX12 adapter found; on Debian/Ubuntu install a \
      Vulkan driver with `apt-get install mesa-vulkan-drivers libvulkan1` (lavapipe runs on the \
@@ -34,6 +36,36 @@ impl From<&wgpu::AdapterInfo> for AdapterSummary {
             driver: format!("{} {}", info.driver, info.driver_info)
                 .trim()
                 .to_string(),
+        }
+    }
+}
+
+/// Which optional features the device is created with (each only where the adapter has it),
+/// and an optional cap on its buffer limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DeviceOptions {
+    /// Subgroup operations (`Features::SUBGROUP`): the backward sums a subgroup's pixels
+    /// before one invocation adds them.
+    pub subgroups: bool,
+    /// Native f32 atomic adds on storage buffers (`Features::SHADER_FLOAT32_ATOMIC`): the
+    /// backward adds into each Gaussian's gradient with them instead of a compare-exchange
+    /// loop.
+    pub float_atomics: bool,
+    /// Lowers the storage-binding and buffer-size limits to this many bytes (tests reach
+    /// the limits cheaply with a small one).
+    pub binding_limit: Option<u64>,
+}
+
+impl DeviceOptions {
+    /// Every optional feature the adapter has, unless `PANO4D_SUBGROUPS=0` or
+    /// `PANO4D_FLOAT_ATOMICS=0` turns it off (to compare the paths, or to step around a
+    /// driver that gets one wrong).
+    pub fn from_env() -> Self {
+        let enabled = |name: &str| std::env::var(name).map_or(true, |v| v.trim() != "0");
+        Self {
+            subgroups: enabled(SUBGROUPS_ENV),
+            float_atomics: enabled(FLOAT_ATOMICS_ENV),
+            binding_limit: None,
         }
     }
 }
@@ -123,20 +155,15 @@ fn choose(
 }
 
 impl GpuContext {
-    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` (see the module docs),
-    /// with subgroup operations where the adapter has them unless `PANO4D_SUBGROUPS=0`
-    /// (to compare, or to step around a driver that gets them wrong).
+    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` (see the module docs)
+    /// with [`DeviceOptions::from_env`].
     pub fn new() -> Result<Self, RasterError> {
-        Self::create(std::env::var(SUBGROUPS_ENV).map_or(true, |v| v.trim() != "0"))
+        Self::with_options(DeviceOptions::from_env())
     }
 
-    /// [`Self::new`] without subgroup operations, as on adapters that lack them (tests
-    /// compare both paths on one machine).
-    pub fn without_subgroups() -> Result<Self, RasterError> {
-        Self::create(false)
-    }
-
-    fn create(subgroups: bool) -> Result<Self, RasterError> {
+    /// Creates a device on the adapter chosen by `PANO4D_ADAPTER` with `options` (tests
+    /// compare the paths of one adapter this way).
+    pub fn with_options(options: DeviceOptions) -> Result<Self, RasterError> {
         let preference = std::env::var(ADAPTER_ENV).ok();
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::PRIMARY;
@@ -144,15 +171,24 @@ impl GpuContext {
         let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
         let adapter = choose(adapters, preference.as_deref())?;
         let info = adapter.get_info();
+        let mut wanted = wgpu::Features::empty();
+        if options.subgroups {
+            wanted |= wgpu::Features::SUBGROUP;
+        }
+        if options.float_atomics {
+            wanted |= wgpu::Features::SHADER_FLOAT32_ATOMIC;
+        }
         // The adapter's own limits: large scenes need storage buffers beyond the defaults.
+        let mut limits = adapter.limits();
+        if let Some(cap) = options.binding_limit {
+            limits.max_storage_buffer_binding_size =
+                limits.max_storage_buffer_binding_size.min(cap);
+            limits.max_buffer_size = limits.max_buffer_size.min(cap);
+        }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("pano4d rasteriser"),
-            required_features: if subgroups {
-                adapter.features() & wgpu::Features::SUBGROUP
-            } else {
-                wgpu::Features::empty()
-            },
-            required_limits: adapter.limits(),
+            required_features: adapter.features() & wanted,
+            required_limits: limits,
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
@@ -167,6 +203,18 @@ impl GpuContext {
             queue,
             adapter: AdapterSummary::from(&info),
         })
+    }
+
+    /// Whether the backward sums each subgroup's pixels first (`Features::SUBGROUP`).
+    pub fn has_subgroups(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SUBGROUP)
+    }
+
+    /// Whether the backward adds with native f32 atomics (else by compare-exchange).
+    pub fn has_float_atomics(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC)
     }
 }
 

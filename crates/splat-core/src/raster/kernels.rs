@@ -97,6 +97,92 @@ pub(crate) fn uniform(device: &wgpu::Device, data: &[u32]) -> wgpu::Buffer {
     })
 }
 
+/// Words of a scan plan (scan.wgsl's `ScanPlan`) or sort plan (sort.wgsl's `SortPlan`):
+/// a length, its number of blocks, and the (x, y, z) workgroups of the block-wise
+/// dispatches, which are indirect from the plan.
+pub(crate) const PLAN_WORDS: usize = 5;
+/// Byte offset of the (x, y, z) workgroups in a plan.
+const PLAN_GROUPS_OFFSET: u64 = 8;
+/// Bytes of a plan buffer: room for the tile plan, which appends the ranges' dispatch.
+const PLAN_BYTES: u64 = 32;
+
+/// The (x, y, 1) grid [`dispatch_linear`] uses for `groups` workgroups (common.wgsl's
+/// `dispatch_grid` computes the same on the GPU).
+pub(crate) fn grid(groups: u32) -> [u32; 3] {
+    if groups == 0 {
+        return [0, 1, 1];
+    }
+    let x = groups.min(MAX_GROUPS_X);
+    [x, div_ceil(groups, x), 1]
+}
+
+fn plan(len: u32, block: u32) -> [u32; PLAN_WORDS] {
+    let blocks = div_ceil(len, block);
+    let [x, y, z] = grid(blocks);
+    [len, blocks, x, y, z]
+}
+
+/// The sort plan of `num_keys` keys and the plan of the digit-count scan inside each of
+/// its passes (tiles.wgsl's `plan_intersections` writes the same for the tile sort).
+pub(crate) fn sort_plans(num_keys: u32) -> ([u32; PLAN_WORDS], [u32; PLAN_WORDS]) {
+    let sort = plan(num_keys, BLOCK);
+    (sort, plan(DIGITS * sort[1], BLOCK))
+}
+
+/// The plan of a scan of `len` values.
+pub(crate) fn scan_plan(len: u32) -> [u32; PLAN_WORDS] {
+    plan(len, BLOCK)
+}
+
+/// A buffer for a scan or sort plan: written by the host (`queue.write_buffer`) or by a
+/// kernel, read by the kernels and as their indirect dispatch sizes.
+pub(crate) fn plan_buffer(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: PLAN_BYTES,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::INDIRECT
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    })
+}
+
+/// The two plans of one sort: its own and that of the scan inside each pass.
+pub(crate) struct SortPlan {
+    pub(crate) sort: wgpu::Buffer,
+    pub(crate) scan: wgpu::Buffer,
+}
+
+impl SortPlan {
+    pub(crate) fn new(device: &wgpu::Device, label: &str) -> Self {
+        Self {
+            sort: plan_buffer(device, label),
+            scan: plan_buffer(device, label),
+        }
+    }
+
+    /// Sizes the sort for `num_keys` keys from the host (before the next submit).
+    pub(crate) fn write(&self, queue: &wgpu::Queue, num_keys: u32) {
+        let (sort, scan) = sort_plans(num_keys);
+        queue.write_buffer(&self.sort, 0, bytemuck::cast_slice(&sort));
+        queue.write_buffer(&self.scan, 0, bytemuck::cast_slice(&scan));
+    }
+}
+
+/// Binds `buffers` to `pipeline` and dispatches it with the workgroups of `plan`.
+fn run_planned(
+    pass: &mut wgpu::ComputePass<'_>,
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[(u32, &wgpu::Buffer)],
+    plan: &wgpu::Buffer,
+) {
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group(device, pipeline, buffers), &[]);
+    pass.dispatch_workgroups_indirect(plan, PLAN_GROUPS_OFFSET);
+}
+
 /// Scan and sort pipelines.
 pub(crate) struct SortKernels {
     scan_blocks: wgpu::ComputePipeline,
@@ -104,6 +190,8 @@ pub(crate) struct SortKernels {
     add_block_sums: wgpu::ComputePipeline,
     count_digits: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
+    /// The digit shift of each pass (sort.wgsl's `SortPass`), fixed, so made once.
+    shifts: Vec<wgpu::Buffer>,
 }
 
 /// Scratch space a sort or scan of `len` values needs, in u32 elements:
@@ -128,43 +216,43 @@ impl SortKernels {
             scan.try_into().expect("three scan entry points");
         let [count_digits, scatter]: [wgpu::ComputePipeline; 2] =
             sort.try_into().expect("two sort entry points");
+        let shifts = (0..u32::BITS / BITS_PER_PASS)
+            .map(|p| uniform(device, &[p * BITS_PER_PASS, 0, 0, 0]))
+            .collect();
         Self {
             scan_blocks,
             scan_block_sums,
             add_block_sums,
             count_digits,
             scatter,
+            shifts,
         }
     }
 
-    /// Exclusive prefix sum of the first `len` u32 of `data`, in place.
+    /// Exclusive prefix sum, in place, of the first `plan.len` u32 of `data`.
     pub(crate) fn encode_scan(
         &self,
         device: &wgpu::Device,
         encoder: &mut wgpu::CommandEncoder,
         data: &wgpu::Buffer,
         block_sums: &wgpu::Buffer,
-        len: u32,
+        plan: &wgpu::Buffer,
     ) {
-        if len == 0 {
-            return;
-        }
-        let num_blocks = div_ceil(len, BLOCK);
-        let params = uniform(device, &[len, num_blocks, 0, 0]);
         let mut pass = encoder.begin_compute_pass(&Default::default());
-        let all = [(0, &params), (1, data), (2, block_sums)];
-        let sums_only = [(0, &params), (2, block_sums)];
-        for (pipeline, bindings, groups) in [
-            (&self.scan_blocks, &all[..], num_blocks),
-            (&self.scan_block_sums, &sums_only[..], 1),
-            (&self.add_block_sums, &all[..], num_blocks),
-        ] {
-            run_linear(&mut pass, device, pipeline, bindings, groups);
-        }
+        let all = [(0, plan), (1, data), (2, block_sums)];
+        run_planned(&mut pass, device, &self.scan_blocks, &all, plan);
+        run_linear(
+            &mut pass,
+            device,
+            &self.scan_block_sums,
+            &[(0, plan), (2, block_sums)],
+            1,
+        );
+        run_planned(&mut pass, device, &self.add_block_sums, &all, plan);
     }
 
-    /// Stable sort of `num_keys` (key, value) pairs by the low `bits` bits of the key.
-    /// Ping-pongs between `keys[0]/vals[0]` (input) and `keys[1]/vals[1]`; returns the
+    /// Stable sort of the (key, value) pairs `plan` counts by the low `bits` bits of the
+    /// key. Ping-pongs between `keys[0]/vals[0]` (input) and `keys[1]/vals[1]`; returns the
     /// index of the pair that holds the result.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_sort(
@@ -175,41 +263,37 @@ impl SortKernels {
         vals: [&wgpu::Buffer; 2],
         counts: &wgpu::Buffer,
         block_sums: &wgpu::Buffer,
-        num_keys: u32,
+        plan: &SortPlan,
         bits: u32,
     ) -> usize {
-        if num_keys <= 1 {
-            return 0;
-        }
-        let num_blocks = div_ceil(num_keys, BLOCK);
         let passes = div_ceil(bits, BITS_PER_PASS);
         let mut src = 0;
-        for p in 0..passes {
+        for shift in &self.shifts[..passes as usize] {
             let dst = 1 - src;
-            let params = uniform(device, &[num_keys, p * BITS_PER_PASS, num_blocks, 0]);
-            let count_bindings = [(0, &params), (1, keys[src]), (3, counts)];
+            let count_bindings = [(0, shift), (1, keys[src]), (3, counts), (6, &plan.sort)];
             let scatter_bindings = [
-                (0, &params),
+                (0, shift),
                 (1, keys[src]),
                 (2, vals[src]),
                 (3, counts),
                 (4, keys[dst]),
                 (5, vals[dst]),
+                (6, &plan.sort),
             ];
-            run_linear(
+            run_planned(
                 &mut encoder.begin_compute_pass(&Default::default()),
                 device,
                 &self.count_digits,
                 &count_bindings,
-                num_blocks,
+                &plan.sort,
             );
-            self.encode_scan(device, encoder, counts, block_sums, DIGITS * num_blocks);
-            run_linear(
+            self.encode_scan(device, encoder, counts, block_sums, &plan.scan);
+            run_planned(
                 &mut encoder.begin_compute_pass(&Default::default()),
                 device,
                 &self.scatter,
                 &scatter_bindings,
-                num_blocks,
+                &plan.sort,
             );
             src = dst;
         }

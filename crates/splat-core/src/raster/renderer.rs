@@ -1,10 +1,9 @@
-//! The rasteriser: pipelines, reusable buffers, forward and backward.
+//! The rasteriser's pipelines and its calls that wait for their results: `forward`,
+//! `draw` (the frame itself is encoded in frame.rs, the backward in backward.rs).
 
-use super::buffers::{check_intersections, Buffers};
+use super::buffers::{Buffers, STATUS_WORDS};
 use super::context::GpuContext;
-use super::kernels::{
-    bind_group, compile, div_ceil, run_linear, scratch_len, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL,
-};
+use super::kernels::{compile, div_ceil, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL};
 use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
 use super::RasterError;
 use crate::camera::Camera;
@@ -17,14 +16,16 @@ const RASTERIZE_WGSL: &str = include_str!("../../../../shaders/rasterize.wgsl");
 const RASTERIZE_BACKWARD_WGSL: &str = include_str!("../../../../shaders/rasterize_backward.wgsl");
 const PROJECT_BACKWARD_WGSL: &str = include_str!("../../../../shaders/project_backward.wgsl");
 const PRESENT_WGSL: &str = include_str!("../../../../shaders/present.wgsl");
-const GRAD_SUM_ATOMIC_WGSL: &str = include_str!("../../../../shaders/grad_sum_atomic.wgsl");
+const GRAD_SUM_PLAIN_WGSL: &str = include_str!("../../../../shaders/grad_sum_plain.wgsl");
 const GRAD_SUM_SUBGROUP_WGSL: &str = include_str!("../../../../shaders/grad_sum_subgroup.wgsl");
+const GRAD_ADD_FLOAT_WGSL: &str = include_str!("../../../../shaders/grad_add_float.wgsl");
+const GRAD_ADD_CAS_WGSL: &str = include_str!("../../../../shaders/grad_add_cas.wgsl");
 
 pub const TILE_SIZE: u32 = 16;
 /// Floats per output pixel: r, g, b, alpha, accumulated depth.
 pub const PIXEL_CHANNELS: usize = 5;
 /// Floats per projected Gaussian (`Projected` in common.wgsl).
-const PROJECTED_FLOATS: u64 = 12;
+pub(super) const PROJECTED_FLOATS: u64 = 12;
 /// The EWA Jacobian clamps x/z and y/z to this multiple of tan(half fov), as 3DGS does.
 const JACOBIAN_CLAMP: f64 = 1.3;
 
@@ -82,20 +83,25 @@ pub(super) struct RenderParams {
     intrinsics: [f32; 4],
     jacobian_limits: [f32; 4],
     background: [f32; 4],
-    width: u32,
-    height: u32,
+    pub(super) width: u32,
+    pub(super) height: u32,
     pub(super) tiles_x: u32,
     pub(super) tiles_y: u32,
     pub(super) num_gaussians: u32,
     pub(super) sh_coeffs: u32,
     antialiased: u32,
-    num_intersections: u32,
+    pub(super) intersection_capacity: u32,
     gaussian_stride: u32,
     log_scale_offset: f32,
-    pad: [u32; 2],
+    pub(super) record_overflow: u32,
+    pad: u32,
 }
 
-fn render_params(camera: &Camera, settings: &RenderSettings, scene: &SceneBuffer) -> RenderParams {
+pub(super) fn render_params(
+    camera: &Camera,
+    settings: &RenderSettings,
+    scene: &SceneBuffer,
+) -> RenderParams {
     let r = camera.rotation;
     let t = camera.translation;
     let row = |i: usize| {
@@ -129,14 +135,15 @@ fn render_params(camera: &Camera, settings: &RenderSettings, scene: &SceneBuffer
         num_gaussians: scene.len,
         sh_coeffs: scene.sh_coeffs,
         antialiased: settings.antialiased as u32,
-        num_intersections: 0,
+        intersection_capacity: 0,
         gaussian_stride: scene.stride,
         log_scale_offset: settings.splat_scale.ln(),
-        pad: [0; 2],
+        record_overflow: 0,
+        pad: 0,
     }
 }
 
-fn validate_settings(settings: &RenderSettings) -> Result<(), RasterError> {
+pub(super) fn validate_settings(settings: &RenderSettings) -> Result<(), RasterError> {
     if !settings.background.iter().all(|v| v.is_finite()) {
         return Err(RasterError::InvalidInput(
             "background must be finite".into(),
@@ -151,7 +158,7 @@ fn validate_settings(settings: &RenderSettings) -> Result<(), RasterError> {
     Ok(())
 }
 
-fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
+pub(super) fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     let finite = [camera.fx, camera.fy, camera.cx, camera.cy]
         .iter()
         .all(|v| v.is_finite())
@@ -171,38 +178,96 @@ fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
     Ok(())
 }
 
-/// The geometry of one frame, left in the buffers by [`Renderer::encode_frame`].
-pub(crate) struct Frame {
+/// One frame's results on the GPU, from [`Renderer::encode_frame`] (the forward's output
+/// is at [`Renderer::frame_pixels`], its status at [`Renderer::frame_status`]): what its
+/// backward needs. The buffers are the renderer's own: the next `encode_frame` on the same
+/// renderer overwrites them.
+pub struct Frame {
     pub(super) scene: SceneBuffer,
     pub(super) params: RenderParams,
-    pub(super) num_intersections: u32,
-    /// Which ping-pong buffer holds the depth-sorted Gaussian indices.
-    pub(super) depth_sorted: usize,
-    /// Which ping-pong buffer holds the tile-sorted slots.
-    pub(super) sorted: usize,
+    pub(super) projected: wgpu::Buffer,
+    pub(super) tile_counts: wgpu::Buffer,
+    /// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
+    pub(super) sorted_gaussians: wgpu::Buffer,
+    pub(super) ranges: wgpu::Buffer,
+    pub(super) pixel_state: wgpu::Buffer,
+    pub(super) pixels: wgpu::Buffer,
+}
+
+impl Frame {
+    /// (width, height) in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.params.width, self.params.height)
+    }
+
+    pub fn num_gaussians(&self) -> u32 {
+        self.params.num_gaussians
+    }
 }
 
 /// Compiled pipelines and reusable buffers on one device. Not thread-safe by itself:
 /// callers serialise access (the Python binding keeps one behind a mutex).
 pub struct Renderer {
     pub(super) ctx: GpuContext,
-    sort: SortKernels,
-    project: wgpu::ComputePipeline,
-    gather_counts: wgpu::ComputePipeline,
-    emit: wgpu::ComputePipeline,
-    ranges: wgpu::ComputePipeline,
-    rasterize: wgpu::ComputePipeline,
+    pub(super) sort: SortKernels,
+    pub(super) project: wgpu::ComputePipeline,
+    pub(super) gather_counts: wgpu::ComputePipeline,
+    pub(super) plan_intersections: wgpu::ComputePipeline,
+    pub(super) emit: wgpu::ComputePipeline,
+    pub(super) ranges: wgpu::ComputePipeline,
+    pub(super) rasterize: wgpu::ComputePipeline,
     pub(super) rasterize_backward: wgpu::ComputePipeline,
     pub(super) project_backward: wgpu::ComputePipeline,
     present: wgpu::ComputePipeline,
     pub(super) buffers: Buffers,
+    /// Tile intersections a frame has room for (0 until the first frame sizes it).
+    pub(super) intersection_capacity: u32,
+    /// The status buffer's overflow count at the last `check_intersections`.
+    pub(super) overflows_seen: u32,
 }
 
-pub(super) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
+pub(crate) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
     match pollster::block_on(scope.pop()) {
         Some(e) => Err(RasterError::Gpu(e.to_string())),
         None => Ok(()),
     }
+}
+
+/// Submits `encoder`, turning validation errors into [`RasterError::Gpu`].
+pub(crate) fn submit_checked(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    encoder: wgpu::CommandEncoder,
+) -> Result<(), RasterError> {
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    queue.submit([encoder.finish()]);
+    pop_error(scope)
+}
+
+/// Maps the first `bytes` of `staging` (a MAP_READ buffer whose copy has been submitted),
+/// waits for the device and returns them.
+pub(crate) fn read_mapped(
+    device: &wgpu::Device,
+    staging: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<u8>, RasterError> {
+    let slice = staging.slice(..bytes);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| RasterError::Gpu(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| RasterError::Gpu(e.to_string()))?
+        .map_err(|e| RasterError::Gpu(e.to_string()))?;
+    let data = slice
+        .get_mapped_range()
+        .map_err(|e| RasterError::Gpu(e.to_string()))?
+        .to_vec();
+    staging.unmap();
+    Ok(data)
 }
 
 impl Renderer {
@@ -211,30 +276,37 @@ impl Renderer {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let one =
             |label: &str, sources: &[&str]| compile(device, label, sources, &["main"]).remove(0);
-        let mut tiles = compile(
+        let tiles = compile(
             device,
             "tiles",
             &[COMMON_WGSL, TILES_WGSL],
-            &["gather_counts", "emit_intersections"],
+            &["gather_counts", "plan_intersections", "emit_intersections"],
         );
-        let emit = tiles.remove(1);
-        let gather_counts = tiles.remove(0);
-        // Subgroup sums cut the backward's contention where the device has them.
-        let grad_sum = if device.features().contains(wgpu::Features::SUBGROUP) {
+        let [gather_counts, plan_intersections, emit]: [wgpu::ComputePipeline; 3] =
+            tiles.try_into().expect("three tiles entry points");
+        // Subgroup sums cut the backward's contention, native float atomics its global
+        // adds, where the device has them.
+        let grad_sum = if ctx.has_subgroups() {
             GRAD_SUM_SUBGROUP_WGSL
         } else {
-            GRAD_SUM_ATOMIC_WGSL
+            GRAD_SUM_PLAIN_WGSL
+        };
+        let grad_add = if ctx.has_float_atomics() {
+            GRAD_ADD_FLOAT_WGSL
+        } else {
+            GRAD_ADD_CAS_WGSL
         };
         let renderer = Self {
             sort: SortKernels::new(device),
             project: one("project", &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_WGSL]),
             gather_counts,
+            plan_intersections,
             emit,
             ranges: one("ranges", &[COMMON_WGSL, RANGES_WGSL]),
             rasterize: one("rasterize", &[COMMON_WGSL, RASTERIZE_WGSL]),
             rasterize_backward: one(
                 "rasterize_backward",
-                &[COMMON_WGSL, grad_sum, RASTERIZE_BACKWARD_WGSL],
+                &[COMMON_WGSL, grad_sum, grad_add, RASTERIZE_BACKWARD_WGSL],
             ),
             project_backward: one(
                 "project_backward",
@@ -242,6 +314,8 @@ impl Renderer {
             ),
             present: one("present", &[COMMON_WGSL, PRESENT_WGSL]),
             buffers: Buffers::new(device),
+            intersection_capacity: 0,
+            overflows_seen: 0,
             ctx,
         };
         pop_error(scope)?;
@@ -252,18 +326,19 @@ impl Renderer {
         &self.ctx
     }
 
-    /// Copies `bytes` from `src` to the host.
+    /// Copies `bytes` of `src` from byte `offset` to the host (waits for the queue).
     pub(super) fn read_back(
         &mut self,
         src: &wgpu::Buffer,
+        offset: u64,
         bytes: u64,
     ) -> Result<Vec<u8>, RasterError> {
         let device = &self.ctx.device;
         let staging = self.buffers.readback.get(device, bytes).clone();
         let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(src, 0, &staging, 0, bytes);
+        encoder.copy_buffer_to_buffer(src, offset, &staging, 0, bytes);
         self.ctx.queue.submit([encoder.finish()]);
-        self.read_mapped(&staging, bytes)
+        read_mapped(&self.ctx.device, &staging, bytes)
     }
 
     /// Copies `scene` into the renderer's own Gaussian buffer (training and one-off
@@ -285,244 +360,62 @@ impl Renderer {
         })
     }
 
-    /// Runs every stage up to and including the forward blending; the results stay in
-    /// the buffers for the read-back, the backward pass or [`Self::draw`]'s conversion.
-    pub(crate) fn encode_frame(
+    /// For the calls that wait for their frame anyway (`forward`, `backward`, `draw`):
+    /// encodes `scene`'s frame and what `then` adds to it, waits, and returns the frame's
+    /// tile intersections and the bytes of the buffer `then` names (none if it names
+    /// none). A frame with more intersections than room is encoded again with room for
+    /// all of them, so these calls never return an overflowed frame; their frames do not
+    /// count in [`Self::check_intersections`].
+    pub(super) fn render_and_read(
         &mut self,
-        scene: SceneBuffer,
+        scene: &SceneBuffer,
         camera: &Camera,
         settings: &RenderSettings,
-    ) -> Result<Frame, RasterError> {
-        validate_camera(camera)?;
-        validate_settings(settings)?;
-        let mut params = render_params(camera, settings, &scene);
-        self.ctx
-            .queue
-            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(&params));
-        let depth_sorted = self.encode_geometry(&scene)?;
-        let m = self.read_intersection_count(scene.len)?;
-        // Every per-intersection array must fit one storage binding (128 MiB on lavapipe).
-        check_intersections(&self.ctx.device, m, 4)?;
-        params.num_intersections = m;
-        self.ctx
-            .queue
-            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(&params));
-        let sorted = self.encode_blend(&params, depth_sorted)?;
-        Ok(Frame {
-            scene,
-            params,
-            num_intersections: m,
-            depth_sorted,
-            sorted,
-        })
-    }
-
-    /// Stages 1–3: projection, depth sort, tile-count scan (one submit). Returns which
-    /// ping-pong buffer holds the depth-sorted indices.
-    fn encode_geometry(&mut self, scene: &SceneBuffer) -> Result<usize, RasterError> {
-        let n = scene.len;
-        let device = self.ctx.device.clone();
-        let b = &mut self.buffers;
-        let n64 = n as u64;
-        let (counts_len, sums_len) = scratch_len(n + 1);
-        let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
-        let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
-        let dk = [
-            b.depth_keys[0].get(&device, 4 * n64).clone(),
-            b.depth_keys[1].get(&device, 4 * n64).clone(),
-        ];
-        let dv = [
-            b.depth_vals[0].get(&device, 4 * n64).clone(),
-            b.depth_vals[1].get(&device, 4 * n64).clone(),
-        ];
-        let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
-        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
-        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
-        let mut encoder = device.create_command_encoder(&Default::default());
-        if n > 0 {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            run_linear(
-                &mut pass,
-                &device,
-                &self.project,
-                &[
-                    (0, &b.params),
-                    (1, &scene.buffer),
-                    (2, &projected),
-                    (3, &tile_counts),
-                    (4, &dk[0]),
-                    (5, &dv[0]),
-                ],
-                div_ceil(n, 256),
-            );
-        }
-        let depth_sorted = self.sort.encode_sort(
-            &device,
-            &mut encoder,
-            [&dk[0], &dk[1]],
-            [&dv[0], &dv[1]],
-            &sort_counts,
-            &block_sums,
-            n,
-            32,
-        );
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            run_linear(
-                &mut pass,
-                &device,
-                &self.gather_counts,
-                &[
-                    (0, &b.params),
-                    (2, &tile_counts),
-                    (3, &dv[depth_sorted]),
-                    (4, &offsets),
-                ],
-                div_ceil(n + 1, 256),
-            );
-        }
-        self.sort
-            .encode_scan(&device, &mut encoder, &offsets, &block_sums, n + 1);
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        self.ctx.queue.submit([encoder.finish()]);
-        pop_error(scope)?;
-        Ok(depth_sorted)
-    }
-
-    /// The number of tile intersections M: the scan's last entry, read back because it
-    /// sizes the tile sort.
-    fn read_intersection_count(&mut self, n: u32) -> Result<u32, RasterError> {
-        let device = &self.ctx.device;
-        let offsets = self.buffers.offsets.get(device, 4 * (n as u64 + 1)).clone();
-        let staging = self.buffers.readback.get(device, 4).clone();
-        let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(&offsets, 4 * n as u64, &staging, 0, 4);
-        self.ctx.queue.submit([encoder.finish()]);
-        let bytes = self.read_mapped(&staging, 4)?;
-        Ok(u32::from_le_bytes(bytes[..4].try_into().expect("4 bytes")))
-    }
-
-    /// Stages 4–7: intersections, tile sort, ranges, blending (one submit). Returns which
-    /// ping-pong buffer holds the tile-sorted slots.
-    fn encode_blend(
-        &mut self,
-        params: &RenderParams,
-        depth_sorted: usize,
-    ) -> Result<usize, RasterError> {
-        let device = self.ctx.device.clone();
-        let b = &mut self.buffers;
-        let m = params.num_intersections;
-        let n64 = params.num_gaussians as u64;
-        let m64 = m as u64;
-        let num_tiles = params.tiles_x * params.tiles_y;
-        let pixels = params.width as u64 * params.height as u64;
-        let projected = b.projected.get(&device, 4 * PROJECTED_FLOATS * n64).clone();
-        let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
-        let depth_vals = b.depth_vals[depth_sorted].get(&device, 4 * n64).clone();
-        let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
-        let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
-        let out_pixels = b
-            .pixels
-            .get(&device, 4 * PIXEL_CHANNELS as u64 * pixels)
-            .clone();
-        let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
-        let ik = [
-            b.isect_keys[0].get(&device, 4 * m64).clone(),
-            b.isect_keys[1].get(&device, 4 * m64).clone(),
-        ];
-        let is = [
-            b.isect_slots[0].get(&device, 4 * m64).clone(),
-            b.isect_slots[1].get(&device, 4 * m64).clone(),
-        ];
-        let ig = b.isect_gaussian.get(&device, 4 * m64).clone();
-        let (counts_len, sums_len) = scratch_len(m);
-        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
-        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
-        let mut encoder = device.create_command_encoder(&Default::default());
-        if m > 0 {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            run_linear(
-                &mut pass,
-                &device,
-                &self.emit,
-                &[
-                    (0, &b.params),
-                    (1, &projected),
-                    (2, &tile_counts),
-                    (3, &depth_vals),
-                    (4, &offsets),
-                    (5, &ik[0]),
-                    (6, &is[0]),
-                    (7, &ig),
-                ],
-                div_ceil(params.num_gaussians, 256),
-            );
-        }
-        let tile_bits = u32::BITS - (num_tiles - 1).leading_zeros();
-        let sorted = self.sort.encode_sort(
-            &device,
-            &mut encoder,
-            [&ik[0], &ik[1]],
-            [&is[0], &is[1]],
-            &sort_counts,
-            &block_sums,
-            m,
-            tile_bits,
-        );
-        encoder.clear_buffer(&ranges, 0, None);
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            if m > 0 {
-                run_linear(
-                    &mut pass,
-                    &device,
-                    &self.ranges,
-                    &[(0, &b.params), (1, &ik[sorted]), (2, &ranges)],
-                    div_ceil(m, 256),
-                );
+        mut then: impl FnMut(&mut Self, &Frame) -> Result<Option<(wgpu::Buffer, u64)>, RasterError>,
+    ) -> Result<(u32, Vec<u8>), RasterError> {
+        // Twice at most: the second frame has room for the first one's intersections.
+        for _ in 0..2 {
+            let frame = self.encode_frame_for(scene.clone(), camera, settings, false)?;
+            let read = then(self, &frame)?;
+            let (status, data) = self.read_status_and(read)?;
+            let [_, _, count, drawn] = status;
+            if drawn == 1 {
+                return Ok((count, data));
             }
-            pass.set_pipeline(&self.rasterize);
-            let group = bind_group(
-                &device,
-                &self.rasterize,
-                &[
-                    (0, &b.params),
-                    (1, &projected),
-                    (2, &is[sorted]),
-                    (3, &ig),
-                    (4, &ranges),
-                    (5, &out_pixels),
-                    (6, &pixel_state),
-                ],
-            );
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(params.tiles_x, params.tiles_y, 1);
+            // Fails when even the largest buffers cannot hold them.
+            self.reserve_intersections(count)?;
         }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        self.ctx.queue.submit([encoder.finish()]);
-        pop_error(scope)?;
-        Ok(sorted)
+        Err(RasterError::Gpu(
+            "a frame overflowed its intersection buffers after they were sized for it".into(),
+        ))
     }
 
-    fn read_mapped(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, RasterError> {
-        let slice = staging.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.ctx
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RasterError::Gpu(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| RasterError::Gpu(e.to_string()))?
-            .map_err(|e| RasterError::Gpu(e.to_string()))?;
-        let data = slice
-            .get_mapped_range()
-            .map_err(|e| RasterError::Gpu(e.to_string()))?
-            .to_vec();
-        staging.unmap();
-        Ok(data)
+    /// Waits for the queue and reads the status buffer and, if given, `bytes` of a buffer,
+    /// in one copy and one map.
+    fn read_status_and(
+        &mut self,
+        read: Option<(wgpu::Buffer, u64)>,
+    ) -> Result<([u32; STATUS_WORDS], Vec<u8>), RasterError> {
+        let status_bytes = 4 * STATUS_WORDS as u64;
+        let data_bytes = read.as_ref().map_or(0, |(_, bytes)| *bytes);
+        let device = &self.ctx.device;
+        let staging = self
+            .buffers
+            .readback
+            .get(device, status_bytes + data_bytes)
+            .clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(&self.buffers.status, 0, &staging, 0, status_bytes);
+        if let Some((src, bytes)) = &read {
+            if *bytes > 0 {
+                encoder.copy_buffer_to_buffer(src, 0, &staging, status_bytes, *bytes);
+            }
+        }
+        self.submit(encoder)?;
+        let mut data = read_mapped(&self.ctx.device, &staging, status_bytes + data_bytes)?;
+        let status: Vec<u32> = bytemuck::pod_collect_to_vec(&data[..status_bytes as usize]);
+        data.drain(..status_bytes as usize);
+        Ok((status.try_into().expect("status words"), data))
     }
 
     /// Renders `scene`: returns H·W·5 floats per pixel (r, g, b, alpha, Σ z·α·T) and the
@@ -534,20 +427,16 @@ impl Renderer {
         settings: &RenderSettings,
     ) -> Result<(Vec<f32>, u32), RasterError> {
         let scene = self.upload(scene)?;
-        let frame = self.encode_frame(scene, camera, settings)?;
         let bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
-        let src = self
-            .buffers
-            .pixels
-            .buffer
-            .clone()
-            .expect("allocated by encode_frame");
-        let data = self.read_back(&src, bytes)?;
-        Ok((bytemuck::pod_collect_to_vec(&data), frame.num_intersections))
+        let (count, data) = self.render_and_read(&scene, camera, settings, |_, frame| {
+            Ok(Some((frame.pixels.clone(), bytes)))
+        })?;
+        Ok((bytemuck::pod_collect_to_vec(&data), count))
     }
 
     /// Draws the resident `scene` into `target` (a [`target_texture`] of the camera's size)
-    /// without a trip through the host; returns the number of tile intersections.
+    /// without a trip of the image through the host; waits for it and returns the number
+    /// of tile intersections.
     pub fn draw(
         &mut self,
         scene: &ResidentScene,
@@ -571,15 +460,18 @@ impl Renderer {
                 target.format()
             )));
         }
-        let frame = self.encode_frame(scene.as_buffer(), camera, settings)?;
-        let device = &self.ctx.device;
-        let pixels = self
-            .buffers
-            .pixels
-            .buffer
-            .clone()
-            .expect("allocated by encode_frame");
         let view = target.create_view(&Default::default());
+        let (count, _) =
+            self.render_and_read(&scene.as_buffer(), camera, settings, |renderer, frame| {
+                renderer.encode_present(frame, &view)?;
+                Ok(None)
+            })?;
+        Ok(count)
+    }
+
+    /// Converts `frame`'s colours into `target` (present.wgsl).
+    fn encode_present(&self, frame: &Frame, target: &wgpu::TextureView) -> Result<(), RasterError> {
+        let device = &self.ctx.device;
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("present"),
             layout: &self.present.get_bind_group_layout(0),
@@ -590,11 +482,11 @@ impl Renderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: pixels.as_entire_binding(),
+                    resource: frame.pixels.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&view),
+                    resource: wgpu::BindingResource::TextureView(target),
                 },
             ],
         });
@@ -605,10 +497,12 @@ impl Renderer {
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
         }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        self.ctx.queue.submit([encoder.finish()]);
-        pop_error(scope)?;
-        Ok(frame.num_intersections)
+        self.submit(encoder)
+    }
+
+    /// Submits `encoder`, turning validation errors into [`RasterError::Gpu`].
+    pub(super) fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
+        submit_checked(&self.ctx.device, &self.ctx.queue, encoder)
     }
 
     /// The pixels of a [`target_texture`] as tightly packed RGBA8 rows.
@@ -633,7 +527,7 @@ impl Renderer {
             texture.size(),
         );
         self.ctx.queue.submit([encoder.finish()]);
-        let padded = self.read_mapped(&staging, bytes)?;
+        let padded = read_mapped(&self.ctx.device, &staging, bytes)?;
         Ok(padded
             .chunks_exact(padded_row as usize)
             .flat_map(|r| &r[..row as usize])

@@ -4,10 +4,11 @@
 use super::RasterError;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
 
-/// A Gaussian buffer in the shaders' SoA layout: sections of `stride` entries of which the
-/// first `len` are drawn.
+/// A Gaussian buffer in the shaders' SoA layout (`SceneInput::packed`'s, with sections of
+/// `stride` entries: means, log-scales, quaternions, opacity logits, SH) of which the first
+/// `len` are drawn.
 #[derive(Clone, Debug)]
-pub(crate) struct SceneBuffer {
+pub struct SceneBuffer {
     pub buffer: wgpu::Buffer,
     pub len: u32,
     pub stride: u32,
@@ -72,11 +73,12 @@ impl ResidentScene {
             .filter(|&c| c < u32::MAX / 64)
             .ok_or_else(|| RasterError::InvalidInput(format!("too many Gaussians: {capacity}")))?;
         check_scene_fits(device, capacity, sh_coeffs)?;
-        // Runtime-sized arrays need at least one element bound, whatever the capacity.
+        // Runtime-sized arrays need at least one element bound, whatever the capacity
+        // (bytes_for is a multiple of 4, as copies need, so a scene under the limit fits).
         let bytes = Self::bytes_for(capacity, sh_coeffs).max(256);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("resident gaussians"),
-            size: bytes.next_multiple_of(16),
+            size: bytes,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -177,7 +179,7 @@ impl ResidentScene {
         }))
     }
 
-    pub(crate) fn as_buffer(&self) -> SceneBuffer {
+    pub fn as_buffer(&self) -> SceneBuffer {
         SceneBuffer {
             buffer: self.buffer.clone(),
             len: self.len,

@@ -1,7 +1,11 @@
 //! GPU tests (they run on lavapipe in CI): the sort and scan against CPU versions, and
-//! renders of single Gaussians whose footprint is known in closed form.
+//! renders of single Gaussians whose footprint is known in closed form; the gradient
+//! paths in `gradients.rs`, frames sized on the GPU and the binding limits in `frames.rs`.
 
-use super::kernels::{scratch_len, SortKernels};
+mod frames;
+mod gradients;
+
+use super::kernels::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
 use super::{
     binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene,
 };
@@ -25,6 +29,7 @@ fn storage(device: &wgpu::Device, data: &[u32]) -> wgpu::Buffer {
     })
 }
 
+/// The first `len` u32 of `src` (a buffer with COPY_SRC).
 fn read(ctx: &GpuContext, src: &wgpu::Buffer, len: usize) -> Vec<u32> {
     let bytes = 4 * len as u64;
     let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -54,6 +59,19 @@ fn random_u32(seed: &mut u64) -> u32 {
     (*seed >> 32) as u32
 }
 
+/// Uniform in [-0.5, 0.5).
+fn random_centred(seed: &mut u64) -> f32 {
+    random_u32(seed) as f32 / u32::MAX as f32 - 0.5
+}
+
+/// A random pixel gradient for a `width`×`height` frame (H·W·5 values).
+fn random_pixel_gradient(width: u32, height: u32, seed: u64) -> Vec<f32> {
+    let mut seed = seed;
+    (0..5 * width * height)
+        .map(|_| random_centred(&mut seed))
+        .collect()
+}
+
 fn gpu_sort(
     ctx: &GpuContext,
     kernels: &SortKernels,
@@ -67,6 +85,8 @@ fn gpu_sort(
     let (counts_len, sums_len) = scratch_len(n);
     let counts = storage(&ctx.device, &vec![0; counts_len as usize]);
     let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
+    let plan = SortPlan::new(&ctx.device, "test sort plan");
+    plan.write(&ctx.queue, n);
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     let out = kernels.encode_sort(
         &ctx.device,
@@ -75,7 +95,7 @@ fn gpu_sort(
         [&v[0], &v[1]],
         &counts,
         &sums,
-        n,
+        &plan,
         bits,
     );
     ctx.queue.submit([encoder.finish()]);
@@ -118,8 +138,11 @@ fn scan_matches_a_cpu_prefix_sum() {
         let buf = storage(&ctx.device, &data);
         let (_, sums_len) = scratch_len(len as u32);
         let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
+        let plan = plan_buffer(&ctx.device, "test scan plan");
+        ctx.queue
+            .write_buffer(&plan, 0, bytemuck::cast_slice(&scan_plan(len as u32)));
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
-        kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, len as u32);
+        kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, &plan);
         ctx.queue.submit([encoder.finish()]);
         let got = read(&ctx, &buf, len);
         let expected: Vec<u32> = data
@@ -185,33 +208,52 @@ fn camera(width: u32, height: u32) -> Camera {
 }
 
 #[test]
-fn centred_gaussian_peaks_at_the_image_centre() {
+fn centred_gaussian_renders_its_closed_form_footprint() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let g = one_gaussian([5.0, 0.0, 0.0], -1.0, 2.0);
+    let (log_scale, opacity_logit, z) = (-1.0f32, 2.0f32, 5.0f64);
+    let g = one_gaussian([z as f32, 0.0, 0.0], log_scale, opacity_logit);
     let settings = RenderSettings::default();
     let (w, h) = (40u32, 30u32);
+    let cam = camera(w, h);
     let (pixels, isects) = renderer
-        .forward(&SceneInput::from(&g), &camera(w, h), &settings)
+        .forward(&SceneInput::from(&g), &cam, &settings)
         .expect("render");
     assert!(isects >= 1);
-    let alpha = |x: u32, y: u32| pixels[((y * w + x) as usize) * 5 + 3];
-    // The mean projects to (20, 15): the four pixels around it are equal and brightest.
-    let peak = alpha(19, 14);
-    for (x, y) in [(20, 14), (19, 15), (20, 15)] {
-        assert!((alpha(x, y) - peak).abs() < 1e-5);
+    // On the optical axis an isotropic Gaussian of scale s at depth z projects to variance
+    // (f s / z)² (+ 0.3 px² of low-pass) about the image centre (20, 15), a pixel corner.
+    let variance = (cam.fx * (log_scale as f64).exp() / z).powi(2) + 0.3;
+    let opacity = 1.0 / (1.0 + (-opacity_logit as f64).exp());
+    let mut drawn = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let (dx, dy) = (x as f64 + 0.5 - 20.0, y as f64 + 0.5 - 15.0);
+            let power = -0.5 * (dx * dx + dy * dy) / variance;
+            let alpha = opacity * power.exp();
+            let px = &pixels[((y * w + x) as usize) * 5..][..5];
+            if power < -4.5 + 1e-4 || alpha < 1.0 / 255.0 + 1e-6 {
+                // Outside the 3σ ellipse or too faint: nothing drawn (away from the edge).
+                if power < -4.5 - 1e-4 || alpha < 1.0 / 255.0 - 1e-6 {
+                    assert_eq!(px[3], 0.0, "pixel ({x}, {y})");
+                }
+                continue;
+            }
+            drawn += 1;
+            assert!((px[3] as f64 - alpha).abs() < 1e-5, "alpha at ({x}, {y})");
+            // Expected depth D / alpha is z; colour 0.5 + C0 · (1, 0, -1) on black.
+            assert!(
+                (px[4] as f64 / alpha - z).abs() < 1e-4,
+                "depth at ({x}, {y})"
+            );
+            let c0 = crate::gaussians::SH_C0 as f64;
+            for (got, colour) in px[..3].iter().zip([0.5 + c0, 0.5, 0.5 - c0]) {
+                assert!(
+                    (*got as f64 - colour * alpha).abs() < 1e-5,
+                    "rgb at ({x}, {y})"
+                );
+            }
+        }
     }
-    let expected_peak = 1.0 / (1.0 + (-2.0f32).exp());
-    assert!(
-        peak > 0.5 * expected_peak && peak <= expected_peak,
-        "peak {peak}"
-    );
-    assert_eq!(alpha(0, 0), 0.0);
-    // Expected depth D / alpha is the Gaussian's z.
-    let d = pixels[((14 * w + 19) as usize) * 5 + 4] / peak;
-    assert!((d - 5.0).abs() < 1e-4, "depth {d}");
-    // Colour: SH DC (1, 0, -1) gives 0.5 + C0 * dc, clamped at 0.
-    let r = pixels[((14 * w + 19) as usize) * 5] / peak;
-    assert!((r - (0.5 + crate::gaussians::SH_C0)).abs() < 1e-4);
+    assert!(drawn > 50, "only {drawn} pixels drawn");
 }
 
 #[test]
@@ -390,72 +432,4 @@ fn draw_checks_its_target() {
         .expect("read back")
         .chunks(4)
         .all(|p| p == [0, 0, 0, 255]));
-}
-
-#[test]
-fn subgroup_and_plain_gradient_sums_agree() {
-    let plain = GpuContext::without_subgroups().expect("adapter");
-    assert!(!plain.device.features().contains(wgpu::Features::SUBGROUP));
-    let fast = GpuContext::new().expect("adapter");
-    let has_subgroups = fast.device.features().contains(wgpu::Features::SUBGROUP);
-    eprintln!("subgroup operations on this adapter: {has_subgroups}");
-    let mut plain = Renderer::new(plain).expect("renderer");
-    let mut fast = Renderer::new(fast).expect("renderer");
-    let set = random_set(400, 11);
-    let (w, h) = (40u32, 28u32);
-    let cam = camera(w, h);
-    let settings = RenderSettings {
-        background: [0.2, 0.1, 0.4],
-        ..Default::default()
-    };
-    let mut seed = 3u64;
-    let v_pixels: Vec<f32> = (0..5 * w * h)
-        .map(|_| random_u32(&mut seed) as f32 / u32::MAX as f32 - 0.5)
-        .collect();
-    let input = SceneInput::from(&set);
-    let a = plain
-        .backward(&input, &cam, &settings, &v_pixels)
-        .expect("plain");
-    let b = fast
-        .backward(&input, &cam, &settings, &v_pixels)
-        .expect("subgroup");
-    for (name, x, y) in [
-        ("means", &a.means, &b.means),
-        ("log_scales", &a.log_scales, &b.log_scales),
-        ("quats", &a.quats, &b.quats),
-        ("opacity_logits", &a.opacity_logits, &b.opacity_logits),
-        ("sh", &a.sh, &b.sh),
-    ] {
-        let scale = x.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
-        let worst = x.iter().zip(y).fold(0f32, |m, (p, q)| m.max((p - q).abs()));
-        assert!(scale > 1e-4, "{name}: no gradient at all");
-        // Only the order of the float additions differs.
-        assert!(
-            worst <= 1e-4 * scale,
-            "{name}: differs by {worst} (largest {scale})"
-        );
-    }
-}
-
-#[test]
-fn a_scene_just_under_the_binding_limit_renders() {
-    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
-    let allowed = binding_limit(&renderer.context().device);
-    if allowed > 256 << 20 {
-        return; // the edge is only cheap to reach on small-limit adapters such as lavapipe
-    }
-    // Within 1 % of the limit: the renderer's growable buffers must not add headroom
-    // past what one binding holds.
-    let n = (allowed as f64 * 0.99 / ResidentScene::bytes_for(1, 16) as f64) as usize;
-    let mut set = random_set(n, 21);
-    set.sh_degree = 3;
-    set.sh = vec![0.1; n * 16 * 3];
-    let (pixels, isects) = renderer
-        .forward(
-            &SceneInput::from(&set),
-            &camera(16, 16),
-            &RenderSettings::default(),
-        )
-        .expect("a scene under the limit renders");
-    assert!(isects > 0 && pixels.iter().all(|v| v.is_finite()));
 }

@@ -1,0 +1,334 @@
+//! Python binding of the resident training loop: `TrainSession` (driven by
+//! `pano4d.lift.resident.ResidentTrainer`).
+//!
+//! Gaussian sets cross as one packed float32 array each, in the shaders' SoA order (means,
+//! log-scales, quaternions, opacity logits, SH), with their count; so do the Adam moments.
+//! Every call runs on the process-wide renderer (python/raster.rs) with the GIL released.
+
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use super::raster::{camera_from, slice, to_py, with_renderer};
+use crate::gaussians::{SceneInput, BASE_FLOATS};
+use crate::raster::RenderSettings;
+use crate::train::{
+    AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput, ViewTargets, GROUPS,
+};
+
+/// A packed SoA array of `n` Gaussians as a [`SceneInput`].
+fn unpack<'a>(name: &str, packed: &'a [f32], n: usize) -> PyResult<SceneInput<'a>> {
+    let bad = || {
+        PyValueError::new_err(format!(
+            "{name} has {} values: not n·(11 + 3k) for n = {n} and k in {{1, 4, 9, 16}}",
+            packed.len()
+        ))
+    };
+    let k = if n == 0 {
+        1
+    } else {
+        if packed.len() % n != 0 {
+            return Err(bad());
+        }
+        let per = packed.len() / n;
+        if per < BASE_FLOATS || (per - BASE_FLOATS) % 3 != 0 {
+            return Err(bad());
+        }
+        (per - BASE_FLOATS) / 3
+    };
+    if ![1, 4, 9, 16].contains(&k) {
+        return Err(bad());
+    }
+    let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
+        .into_iter()
+        .scan(0, |start, len| {
+            let part = &packed[*start..*start + len];
+            *start += len;
+            Some(part)
+        });
+    let mut next = || parts.next().unwrap_or(&[]);
+    Ok(SceneInput {
+        means: next(),
+        log_scales: next(),
+        quats: next(),
+        opacity_logits: next(),
+        sh: next(),
+    })
+}
+
+fn optional<'a>(
+    name: &str,
+    array: &'a Option<PyReadonlyArray1<'_, f32>>,
+) -> PyResult<Option<&'a [f32]>> {
+    array.as_ref().map(|a| slice(name, a)).transpose()
+}
+
+/// (K, world_to_cam, width, height, rgb, weight, depth, previous, weight_sum) of one view.
+type PyView<'py> = (
+    PyReadonlyArray2<'py, f64>,
+    PyReadonlyArray2<'py, f64>,
+    u32,
+    u32,
+    PyReadonlyArray1<'py, f32>,
+    PyReadonlyArray1<'py, f32>,
+    Option<PyReadonlyArray1<'py, f32>>,
+    Option<PyReadonlyArray1<'py, f32>>,
+    f32,
+);
+
+/// The trained Gaussians, their Adam moments and the stage's targets on the GPU.
+#[pyclass(name = "TrainSession", module = "pano4d._core")]
+pub struct PyTrainSession {
+    inner: TrainSession,
+}
+
+#[pymethods]
+impl PyTrainSession {
+    /// `context`/`trained`: packed Gaussians (see the module docs); `unit`: each trained
+    /// Gaussian's offset unit; `views`: (K, world_to_cam, width, height, rgb, weight,
+    /// depth or None, previous or None, weight_sum) tuples; `learning_rates`: the six
+    /// groups' (means as offsets, log-scales, quats, opacity logits, SH DC, SH rest);
+    /// `lambdas`: the weights of L1, D-SSIM, L_temporal, L_geo.
+    #[new]
+    #[pyo3(signature = (context, context_len, trained, unit, views, learning_rates, betas, eps, lambdas, background))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        context: PyReadonlyArray1<'_, f32>,
+        context_len: usize,
+        trained: PyReadonlyArray1<'_, f32>,
+        unit: PyReadonlyArray1<'_, f32>,
+        views: Vec<PyView<'_>>,
+        learning_rates: [f64; GROUPS],
+        betas: (f64, f64),
+        eps: f64,
+        lambdas: (f32, f32, f32, f32),
+        background: [f32; 3],
+    ) -> PyResult<Self> {
+        let unit = slice("unit", &unit)?;
+        let context = unpack("context", slice("context", &context)?, context_len)?;
+        let gaussians = unpack("trained", slice("trained", &trained)?, unit.len())?;
+        let mut targets = Vec::with_capacity(views.len());
+        for (k, w2c, width, height, rgb, weight, depth, previous, weight_sum) in &views {
+            targets.push(ViewTargets {
+                camera: camera_from(k, w2c, *width, *height)?,
+                rgb: slice("rgb", rgb)?,
+                weight: slice("weight", weight)?,
+                depth: optional("depth", depth)?,
+                previous: optional("previous", previous)?,
+                weight_sum: *weight_sum,
+            });
+        }
+        let config = TrainConfig {
+            adam: AdamConfig {
+                learning_rates,
+                beta1: betas.0,
+                beta2: betas.1,
+                eps,
+            },
+            losses: LossWeights {
+                l1: lambdas.0,
+                ssim: lambdas.1,
+                temporal: lambdas.2,
+                geo: lambdas.3,
+            },
+            settings: RenderSettings {
+                background,
+                ..Default::default()
+            },
+        };
+        let trained = TrainedInput {
+            gaussians,
+            unit,
+            exp_avg: None,
+            exp_avg_sq: None,
+            grad_accum: None,
+            grad_count: None,
+            adam_steps: 0,
+        };
+        let inner = py
+            .detach(|| with_renderer(|r| TrainSession::new(r, context, trained, &targets, config)))
+            .map_err(to_py)?;
+        Ok(Self { inner })
+    }
+
+    /// One step (forward, losses, backward, Adam) on view `view`; waits for nothing.
+    fn step(&mut self, py: Python<'_>, view: usize) -> PyResult<()> {
+        let s = &mut self.inner;
+        py.detach(|| with_renderer(|r| s.step(r, view)))
+            .map_err(to_py)
+    }
+
+    /// Forward, losses and backward of view `view`, without the Adam step.
+    fn forward_backward(&mut self, py: Python<'_>, view: usize) -> PyResult<()> {
+        let s = &mut self.inner;
+        py.detach(|| with_renderer(|r| s.forward_backward(r, view)))
+            .map_err(to_py)
+    }
+
+    /// The last forward's pixels, H·W·5 float32.
+    fn read_render<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let s = &mut self.inner;
+        let pixels = py
+            .detach(|| with_renderer(|r| s.read_render(r)))
+            .map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, pixels))
+    }
+
+    /// Renders at another camera of the views' size; returns its pixels (H·W·5).
+    fn render_at<'py>(
+        &mut self,
+        py: Python<'py>,
+        k: PyReadonlyArray2<'py, f64>,
+        world_to_cam: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let s = &mut self.inner;
+        let (width, height) = s.size();
+        let camera = camera_from(&k, &world_to_cam, width, height)?;
+        let pixels = py
+            .detach(|| with_renderer(|r| s.render_at(r, &camera)))
+            .map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, pixels))
+    }
+
+    /// The losses of view `view` on given pixels (H·W·5) instead of a render: (pixel
+    /// gradient, loss parts). For checking the loss kernels.
+    fn loss_gradient<'py>(
+        &mut self,
+        py: Python<'py>,
+        view: usize,
+        pixels: PyReadonlyArray1<'py, f32>,
+    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Vec<f32>)> {
+        let p = slice("pixels", &pixels)?;
+        let s = &mut self.inner;
+        let (gradient, loss) = py.detach(|| s.loss_gradient(view, p)).map_err(to_py)?;
+        Ok((PyArray1::from_vec(py, gradient), loss.to_vec()))
+    }
+
+    /// Adds the gradient of a loss on render_at's pixels (H·W·5) to this step's.
+    fn backward_at(&mut self, py: Python<'_>, v_pixels: PyReadonlyArray1<'_, f32>) -> PyResult<()> {
+        let v = slice("v_pixels", &v_pixels)?;
+        let s = &mut self.inner;
+        py.detach(|| with_renderer(|r| s.backward_at(r, v)))
+            .map_err(to_py)
+    }
+
+    /// The Adam step that completes forward_backward.
+    fn apply_adam(&mut self, py: Python<'_>) -> PyResult<()> {
+        let s = &mut self.inner;
+        py.detach(|| s.apply_adam()).map_err(to_py)
+    }
+
+    /// Adam on given gradients (context + trained, the backward's packed layout).
+    fn apply_gradients(
+        &mut self,
+        py: Python<'_>,
+        grads: PyReadonlyArray1<'_, f32>,
+    ) -> PyResult<()> {
+        let g = slice("grads", &grads)?;
+        let s = &mut self.inner;
+        py.detach(|| s.apply_gradients(g)).map_err(to_py)
+    }
+
+    /// Sizes the renderer's intersection buffers for every view of the current scene (one
+    /// wait): at the start of a stage and after set_trained.
+    fn reserve_frames(&mut self, py: Python<'_>) -> PyResult<()> {
+        let s = &mut self.inner;
+        py.detach(|| with_renderer(|r| s.reserve_frames(r)))
+            .map_err(to_py)
+    }
+
+    /// (frames that overflowed their intersection buffers since the last check, the
+    /// largest frame's intersections, the room from now on); grows the room when the
+    /// largest frame came near it. A 16-byte read-back: call it with the loss.
+    fn check_frames(&mut self, py: Python<'_>) -> PyResult<(u32, u32, u32)> {
+        let s = &mut self.inner;
+        let c = py
+            .detach(|| with_renderer(|r| s.check_frames(r)))
+            .map_err(to_py)?;
+        Ok((c.overflowed, c.max_intersections, c.capacity))
+    }
+
+    /// The last step's loss parts: (L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
+    /// weight, 1.0 if L_geo applied else 0.0).
+    fn loss(&mut self, py: Python<'_>) -> PyResult<Vec<f32>> {
+        let s = &mut self.inner;
+        Ok(py.detach(|| s.loss()).map_err(to_py)?.to_vec())
+    }
+
+    /// The trained set and optimiser state: {params, unit, exp_avg, exp_avg_sq,
+    /// grad_accum, grad_count} as flat float32 arrays (params and moments packed) and
+    /// adam_steps.
+    fn state<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &mut self.inner;
+        let state = py.detach(|| s.state()).map_err(to_py)?;
+        let out = PyDict::new(py);
+        out.set_item("params", PyArray1::from_vec(py, state.params))?;
+        out.set_item("unit", PyArray1::from_vec(py, state.unit))?;
+        out.set_item("exp_avg", PyArray1::from_vec(py, state.exp_avg))?;
+        out.set_item("exp_avg_sq", PyArray1::from_vec(py, state.exp_avg_sq))?;
+        out.set_item("grad_accum", PyArray1::from_vec(py, state.grad_accum))?;
+        out.set_item("grad_count", PyArray1::from_vec(py, state.grad_count))?;
+        out.set_item("adam_steps", state.adam_steps)?;
+        Ok(out)
+    }
+
+    /// The trained set's parameters as one packed float32 array.
+    fn params<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let s = &mut self.inner;
+        let packed = py.detach(|| s.params()).map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, packed))
+    }
+
+    /// The whole scene (context, then trained set) as one packed float32 array.
+    fn scene<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let s = &mut self.inner;
+        let packed = py.detach(|| s.scene()).map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, packed))
+    }
+
+    /// Replaces the trained set and its optimiser state (densification, resume); moments
+    /// and statistics left out start at zero.
+    #[pyo3(signature = (trained, unit, exp_avg=None, exp_avg_sq=None, grad_accum=None, grad_count=None, adam_steps=0))]
+    #[allow(clippy::too_many_arguments)]
+    fn set_trained(
+        &mut self,
+        py: Python<'_>,
+        trained: PyReadonlyArray1<'_, f32>,
+        unit: PyReadonlyArray1<'_, f32>,
+        exp_avg: Option<PyReadonlyArray1<'_, f32>>,
+        exp_avg_sq: Option<PyReadonlyArray1<'_, f32>>,
+        grad_accum: Option<PyReadonlyArray1<'_, f32>>,
+        grad_count: Option<PyReadonlyArray1<'_, f32>>,
+        adam_steps: u64,
+    ) -> PyResult<()> {
+        let unit = slice("unit", &unit)?;
+        let input = TrainedInput {
+            gaussians: unpack("trained", slice("trained", &trained)?, unit.len())?,
+            unit,
+            exp_avg: optional("exp_avg", &exp_avg)?,
+            exp_avg_sq: optional("exp_avg_sq", &exp_avg_sq)?,
+            grad_accum: optional("grad_accum", &grad_accum)?,
+            grad_count: optional("grad_count", &grad_count)?,
+            adam_steps,
+        };
+        let s = &mut self.inner;
+        py.detach(|| s.set_trained(input)).map_err(to_py)
+    }
+
+    /// (bytes uploaded, bytes read back) by the session so far.
+    fn traffic(&self) -> (u64, u64) {
+        let t = self.inner.traffic();
+        (t.uploaded, t.read_back)
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyTrainSession>()?;
+    Ok(())
+}

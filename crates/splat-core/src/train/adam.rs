@@ -1,0 +1,135 @@
+//! Adam on the device (`shaders/adam.wgsl`): torch.optim.Adam's update, element by
+//! element, with one learning rate per parameter group.
+
+use crate::raster::kernels::{compile, div_ceil, run_linear, COMMON_WGSL, GAUSSIAN_WGSL};
+
+const ADAM_WGSL: &str = include_str!("../../../../shaders/adam.wgsl");
+
+/// Parameter groups, in the order of the learning rates: means (as offsets in units of
+/// each Gaussian's initial depth), log-scales, quaternions, opacity logits, SH DC, SH rest.
+pub const GROUPS: usize = 6;
+
+/// Adam's hyper-parameters (torch's names and defaults for β).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamConfig {
+    pub learning_rates: [f64; GROUPS],
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct AdamParams {
+    pub n_context: u32,
+    pub n_train: u32,
+    pub stride: u32,
+    pub grad_len: u32,
+    pub sh_coeffs: u32,
+    pub has_extra: u32,
+    pad0: [u32; 2],
+    beta1_complement: f32,
+    beta2: f32,
+    beta2_complement: f32,
+    eps: f32,
+    bias2_sqrt: f32,
+    pad1: [f32; 3],
+    neg_step: [f32; 8],
+}
+
+/// Where the trained Gaussians and their gradients lie (see adam.wgsl's header).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct AdamLayout {
+    pub n_context: u32,
+    pub n_train: u32,
+    pub stride: u32,
+    pub sh_coeffs: u32,
+    pub has_extra: bool,
+}
+
+impl AdamConfig {
+    /// The shader's constants for Adam step `step` (1 for the first), computed as
+    /// torch's `_single_tensor_adam` does: the bias corrections in f64 (Python floats),
+    /// rounded to f32 where torch hands them to a float32 kernel as a scalar.
+    pub(super) fn params(&self, step: u64, layout: AdamLayout) -> AdamParams {
+        let t = step as f64;
+        let bias1 = 1.0 - self.beta1.powf(t);
+        let bias2 = 1.0 - self.beta2.powf(t);
+        let mut neg_step = [0.0f32; 8];
+        for (out, lr) in neg_step.iter_mut().zip(self.learning_rates) {
+            *out = -(lr / bias1) as f32;
+        }
+        AdamParams {
+            n_context: layout.n_context,
+            n_train: layout.n_train,
+            stride: layout.stride,
+            grad_len: layout.n_context + layout.n_train,
+            sh_coeffs: layout.sh_coeffs,
+            has_extra: layout.has_extra as u32,
+            pad0: [0; 2],
+            beta1_complement: (1.0 - self.beta1) as f32,
+            beta2: self.beta2 as f32,
+            beta2_complement: (1.0 - self.beta2) as f32,
+            eps: self.eps as f32,
+            bias2_sqrt: bias2.sqrt() as f32,
+            pad1: [0.0; 3],
+            neg_step,
+        }
+    }
+}
+
+/// The buffers one Adam step reads and writes.
+pub(super) struct AdamBindings<'a> {
+    pub params: &'a wgpu::Buffer,
+    pub scene: &'a wgpu::Buffer,
+    pub grads: &'a wgpu::Buffer,
+    pub grads_extra: &'a wgpu::Buffer,
+    pub exp_avg: &'a wgpu::Buffer,
+    pub exp_avg_sq: &'a wgpu::Buffer,
+    pub unit: &'a wgpu::Buffer,
+    pub stats: &'a wgpu::Buffer,
+}
+
+pub(super) struct AdamKernel {
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl AdamKernel {
+    pub(super) fn new(device: &wgpu::Device) -> Self {
+        Self {
+            pipeline: compile(
+                device,
+                "adam",
+                &[COMMON_WGSL, GAUSSIAN_WGSL, ADAM_WGSL],
+                &["main"],
+            )
+            .remove(0),
+        }
+    }
+
+    /// Encodes one step over `n_train` Gaussians.
+    pub(super) fn encode(
+        &self,
+        device: &wgpu::Device,
+        pass: &mut wgpu::ComputePass<'_>,
+        b: &AdamBindings<'_>,
+        n_train: u32,
+    ) {
+        run_linear(
+            pass,
+            device,
+            &self.pipeline,
+            &[
+                (0, b.params),
+                (1, b.scene),
+                (2, b.grads),
+                (3, b.grads_extra),
+                (4, b.exp_avg),
+                (5, b.exp_avg_sq),
+                (6, b.unit),
+                (7, b.stats),
+            ],
+            div_ceil(n_train, 256),
+        );
+    }
+}

@@ -1,0 +1,23 @@
+//! Training on the device: the lifting phase's optimisation loop with the Gaussians, their
+//! Adam moments and the stage's targets resident, driven step by step from Python
+//! (`pano4d.lift.resident`).
+//!
+//! - [`session`]: [`TrainSession`], the buffers and one step (forward → losses → backward
+//!   → Adam), the read-backs at checkpoints and densification, the traffic counter.
+//! - [`losses`]: 0.8·L1 + 0.2·D-SSIM, L_temporal and L_geo with their pixel gradient
+//!   (`shaders/train_losses.wgsl`).
+//! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
+//!   (`shaders/adam.wgsl`).
+//!
+//! The torch trainer (`pano4d.lift.optimize.GaussianTrainer`) is the reference; the
+//! Python tests compare the two step for step.
+
+pub mod adam;
+pub mod losses;
+pub mod session;
+#[cfg(test)]
+mod tests;
+
+pub use adam::{AdamConfig, GROUPS};
+pub use losses::{ssim_taps, ssim_window, LossWeights, LOSS_PARTS};
+pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, ViewTargets};

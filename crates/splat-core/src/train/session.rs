@@ -1,0 +1,753 @@
+//! A training session: the Gaussians being trained (after a frozen context), their Adam
+//! moments, the stage's targets and the scratch of one step, all resident on the device.
+//!
+//! One step ([`TrainSession::step`]) is forward → losses and their pixel gradient →
+//! backward → Adam, submitted without waiting for the host except where the renderer
+//! itself waits (docs/rasterizer.md). The host reads back the loss parts
+//! ([`TrainSession::loss`]) when it wants them and the whole trained state
+//! ([`TrainSession::state`]) at checkpoints, densification and export; [`Traffic`]
+//! counts every byte the session moves between host and device.
+
+use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
+use super::losses::{LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS};
+use crate::camera::Camera;
+use crate::gaussians::{SceneInput, BASE_FLOATS};
+use crate::raster::renderer::{
+    pop_error, read_mapped, submit_checked, Frame, RenderSettings, Renderer, PIXEL_CHANNELS,
+};
+use crate::raster::{binding_limit, IntersectionCheck, RasterError, ResidentScene, SceneBuffer};
+
+/// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
+/// L_geo) and the previous timestamp's render (h·w·3, for L_temporal).
+pub struct ViewTargets<'a> {
+    pub camera: Camera,
+    pub rgb: &'a [f32],
+    pub weight: &'a [f32],
+    pub depth: Option<&'a [f32]>,
+    pub previous: Option<&'a [f32]>,
+    /// max(Σ weight, 1e-6), as the torch trainer computes it (the caller's float sum).
+    pub weight_sum: f32,
+}
+
+/// Everything fixed for a session.
+#[derive(Clone, Copy, Debug)]
+pub struct TrainConfig {
+    pub adam: AdamConfig,
+    pub losses: LossWeights,
+    pub settings: RenderSettings,
+}
+
+/// Bytes moved between host and device by the session (the renderer's own per-frame
+/// uniforms are not included: see [`TrainSession::traffic`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Traffic {
+    pub uploaded: u64,
+    pub read_back: u64,
+}
+
+/// The trained set with its optimiser state. Parameters and moments are in the packed SoA
+/// layout of [`SceneInput::packed`] (means, log-scales, quaternions, opacity logits, SH);
+/// the mean moments are those of the offsets (see shaders/adam.wgsl).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TrainState {
+    pub params: Vec<f32>,
+    pub unit: Vec<f32>,
+    pub exp_avg: Vec<f32>,
+    pub exp_avg_sq: Vec<f32>,
+    /// Σ ‖g_offset‖ and the number of steps where it was non-zero, per Gaussian.
+    pub grad_accum: Vec<f32>,
+    pub grad_count: Vec<f32>,
+    /// Adam steps taken (torch's `state["step"]`).
+    pub adam_steps: u64,
+}
+
+/// What [`TrainSession::set_trained`] uploads; moments and statistics start at zero
+/// where they are `None`.
+pub struct TrainedInput<'a> {
+    pub gaussians: SceneInput<'a>,
+    /// Each Gaussian's offset unit (its initial distance from the centre).
+    pub unit: &'a [f32],
+    pub exp_avg: Option<&'a [f32]>,
+    pub exp_avg_sq: Option<&'a [f32]>,
+    pub grad_accum: Option<&'a [f32]>,
+    pub grad_count: Option<&'a [f32]>,
+    pub adam_steps: u64,
+}
+
+struct View {
+    camera: Camera,
+    params: wgpu::Buffer,
+    rgb: wgpu::Buffer,
+    weight: wgpu::Buffer,
+    depth: Option<wgpu::Buffer>,
+    previous: Option<wgpu::Buffer>,
+}
+
+/// Per-Gaussian buffers of the trained set, sized for its count.
+struct Trained {
+    len: u32,
+    unit: wgpu::Buffer,
+    exp_avg: wgpu::Buffer,
+    exp_avg_sq: wgpu::Buffer,
+    stats: wgpu::Buffer,
+}
+
+pub struct TrainSession {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    config: TrainConfig,
+    losses: LossKernels,
+    adam: AdamKernel,
+    loss_buffers: LossBuffers,
+    views: Vec<View>,
+    width: u32,
+    height: u32,
+    /// Bound where a view has no depth or previous render.
+    placeholder: wgpu::Buffer,
+    sh_coeffs: u32,
+    n_context: u32,
+    /// The scene: context then trained set, SoA sections of `capacity`.
+    scene: wgpu::Buffer,
+    capacity: u32,
+    trained: Trained,
+    grads: wgpu::Buffer,
+    grads_extra: wgpu::Buffer,
+    v_extra: wgpu::Buffer,
+    adam_params: wgpu::Buffer,
+    adam_steps: u64,
+    /// The frame of [`Self::render_at`], for [`Self::backward_at`].
+    extra_frame: Option<Frame>,
+    has_extra: bool,
+    traffic: Traffic,
+}
+
+/// Floats per Gaussian in each SoA section, for `k` SH coefficients per channel.
+fn section_widths(k: u32) -> [u64; 5] {
+    [3, 3, 4, 1, 3 * k as u64]
+}
+
+fn invalid(message: String) -> RasterError {
+    RasterError::InvalidInput(message)
+}
+
+fn storage(device: &wgpu::Device, label: &str, floats: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        // Runtime-sized arrays need at least one element bound.
+        size: (4 * floats).max(256).next_multiple_of(16),
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+fn check_len(what: &str, got: usize, want: usize) -> Result<(), RasterError> {
+    if got != want {
+        return Err(invalid(format!("{what} has {got} values, expected {want}")));
+    }
+    Ok(())
+}
+
+impl TrainSession {
+    /// A session on `renderer`'s device: uploads the frozen `context` (may be empty), the
+    /// trained set and the views' targets once.
+    pub fn new(
+        renderer: &Renderer,
+        context: SceneInput<'_>,
+        trained: TrainedInput<'_>,
+        views: &[ViewTargets<'_>],
+        config: TrainConfig,
+    ) -> Result<Self, RasterError> {
+        let ctx = renderer.context();
+        let device = ctx.device.clone();
+        let queue = ctx.queue.clone();
+        let first = views
+            .first()
+            .ok_or_else(|| invalid("no views to train on".into()))?;
+        let (width, height) = (first.camera.width, first.camera.height);
+        if width.min(height) < 4 {
+            return Err(invalid(format!(
+                "views must be at least 4 pixels a side for SSIM, got {width}x{height}"
+            )));
+        }
+        let (n_context, k_context) = context.validate().map_err(invalid)?;
+        let (n_train, k_train) = trained.gaussians.validate().map_err(invalid)?;
+        let sh_coeffs = if n_train > 0 { k_train } else { k_context };
+        if n_context > 0 && n_train > 0 && k_context != k_train {
+            return Err(invalid(format!(
+                "the context has {k_context} SH coefficients per channel and the trained set \
+                 {k_train}: give both the same degree"
+            )));
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let loss_buffers = LossBuffers::new(&device, width * height);
+        let adam_params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("adam params"),
+            size: std::mem::size_of::<AdamParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut session = Self {
+            losses: LossKernels::new(&device),
+            adam: AdamKernel::new(&device),
+            loss_buffers,
+            views: Vec::with_capacity(views.len()),
+            width,
+            height,
+            placeholder: storage(&device, "placeholder", 1),
+            sh_coeffs,
+            n_context,
+            scene: storage(&device, "scene", 0),
+            capacity: 0,
+            trained: Trained {
+                len: 0,
+                unit: storage(&device, "unit", 0),
+                exp_avg: storage(&device, "exp_avg", 0),
+                exp_avg_sq: storage(&device, "exp_avg_sq", 0),
+                stats: storage(&device, "gradient statistics", 0),
+            },
+            grads: storage(&device, "gradients", 0),
+            grads_extra: storage(&device, "extra gradients", 0),
+            v_extra: storage(&device, "extra pixel gradients", 0),
+            adam_params,
+            adam_steps: 0,
+            extra_frame: None,
+            has_extra: false,
+            traffic: Traffic::default(),
+            config,
+            device,
+            queue,
+        };
+        for view in views {
+            session.add_view(view)?;
+        }
+        session.v_extra = storage(
+            &session.device,
+            "extra pixel gradients",
+            PIXEL_CHANNELS as u64 * (width * height) as u64,
+        );
+        session.allocate_scene(n_context + n_train)?;
+        session.write_scene(0, &context);
+        session.set_trained(trained)?;
+        pop_error(scope)?;
+        Ok(session)
+    }
+
+    fn add_view(&mut self, view: &ViewTargets<'_>) -> Result<(), RasterError> {
+        let (w, h) = (view.camera.width, view.camera.height);
+        if (w, h) != (self.width, self.height) {
+            return Err(invalid(format!(
+                "all views must have one size: {w}x{h} after {}x{}",
+                self.width, self.height
+            )));
+        }
+        let pixels = (w * h) as usize;
+        check_len("a view's rgb", view.rgb.len(), 3 * pixels)?;
+        check_len("a view's weight", view.weight.len(), pixels)?;
+        if let Some(depth) = view.depth {
+            check_len("a view's depth", depth.len(), pixels)?;
+        }
+        if let Some(previous) = view.previous {
+            check_len("a view's previous render", previous.len(), 3 * pixels)?;
+        }
+        if !(view.weight_sum.is_finite() && view.weight_sum > 0.0) {
+            return Err(invalid(format!(
+                "a view's weight sum must be finite and > 0, got {}",
+                view.weight_sum
+            )));
+        }
+        let params = LossParams::new(
+            w,
+            h,
+            view.weight_sum,
+            self.config.losses,
+            view.previous.is_some(),
+            view.depth.is_some(),
+        );
+        let uniform = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("loss params"),
+            size: std::mem::size_of::<LossParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.upload(&uniform, 0, bytemuck::bytes_of(&params));
+        let mut array = |label: &str, data: &[f32]| {
+            let buffer = storage(&self.device, label, data.len() as u64);
+            self.upload(&buffer, 0, bytemuck::cast_slice(data));
+            buffer
+        };
+        let view = View {
+            camera: view.camera,
+            params: uniform,
+            rgb: array("target rgb", view.rgb),
+            weight: array("target weight", view.weight),
+            depth: view.depth.map(|d| array("target depth", d)),
+            previous: view.previous.map(|p| array("previous render", p)),
+        };
+        self.views.push(view);
+        Ok(())
+    }
+
+    /// Host↔device bytes the session has moved so far, the frame checks of
+    /// [`Self::check_frames`] included. The renderer's own upload of its per-frame
+    /// parameters comes on top (its size is counted by the benchmark).
+    pub fn traffic(&self) -> Traffic {
+        self.traffic
+    }
+
+    pub fn len(&self) -> usize {
+        self.trained.len as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.trained.len == 0
+    }
+
+    pub fn context_len(&self) -> usize {
+        self.n_context as usize
+    }
+
+    pub fn views(&self) -> usize {
+        self.views.len()
+    }
+
+    /// The views' (width, height).
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Adam steps taken so far.
+    pub fn adam_steps(&self) -> u64 {
+        self.adam_steps
+    }
+
+    fn upload(&mut self, buffer: &wgpu::Buffer, offset: u64, bytes: &[u8]) {
+        if !bytes.is_empty() {
+            self.queue.write_buffer(buffer, offset, bytes);
+            self.traffic.uploaded += bytes.len() as u64;
+        }
+    }
+
+    /// Copies `(buffer, byte offset, bytes)` regions to the host, one after the other,
+    /// in one round trip.
+    fn read(&mut self, regions: &[(&wgpu::Buffer, u64, u64)]) -> Result<Vec<f32>, RasterError> {
+        let total: u64 = regions.iter().map(|r| r.2).sum();
+        if total == 0 {
+            return Ok(Vec::new());
+        }
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("train read-back"),
+            size: total,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let mut at = 0;
+        for &(buffer, offset, bytes) in regions {
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(buffer, offset, &staging, at, bytes);
+            }
+            at += bytes;
+        }
+        self.submit(encoder)?;
+        let data = bytemuck::pod_collect_to_vec(&read_mapped(&self.device, &staging, total)?);
+        self.traffic.read_back += total;
+        Ok(data)
+    }
+
+    /// Makes room for `total` Gaussians (context + trained); a larger scene buffer gets the
+    /// context copied over on the device.
+    fn allocate_scene(&mut self, total: u32) -> Result<(), RasterError> {
+        if total <= self.capacity && self.capacity > 0 {
+            return Ok(());
+        }
+        let bytes = ResidentScene::bytes_for(total as usize, self.sh_coeffs as usize);
+        let allowed = binding_limit(&self.device);
+        if bytes > allowed {
+            return Err(RasterError::TooLarge {
+                gaussians: total as usize,
+                bytes,
+                allowed,
+            });
+        }
+        let scene = storage(&self.device, "scene", bytes / 4);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let (mut old_start, mut new_start) = (0, 0);
+        for width in section_widths(self.sh_coeffs) {
+            let bytes = 4 * width * self.n_context as u64;
+            if bytes > 0 && self.capacity > 0 {
+                encoder.copy_buffer_to_buffer(&self.scene, old_start, &scene, new_start, bytes);
+            }
+            old_start += 4 * width * self.capacity as u64;
+            new_start += 4 * width * total as u64;
+        }
+        self.queue.submit([encoder.finish()]);
+        self.scene = scene;
+        self.capacity = total;
+        Ok(())
+    }
+
+    /// Writes `part` as scene Gaussians `first..first + part.len()`.
+    fn write_scene(&mut self, first: u32, part: &SceneInput<'_>) {
+        let scene = self.scene.clone();
+        let mut start = 0;
+        for (data, width) in part
+            .sections()
+            .into_iter()
+            .zip(section_widths(self.sh_coeffs))
+        {
+            self.upload(
+                &scene,
+                4 * (start + width * first as u64),
+                bytemuck::cast_slice(data),
+            );
+            start += width * self.capacity as u64;
+        }
+    }
+
+    fn floats_per_gaussian(&self) -> u64 {
+        BASE_FLOATS as u64 + 3 * self.sh_coeffs as u64
+    }
+
+    /// Replaces the trained set (after densification, or to resume): parameters, units,
+    /// moments, statistics and the Adam step count.
+    pub fn set_trained(&mut self, t: TrainedInput<'_>) -> Result<(), RasterError> {
+        let (n, k) = t.gaussians.validate().map_err(invalid)?;
+        if n > 0 && k != self.sh_coeffs {
+            return Err(invalid(format!(
+                "{k} SH coefficients per channel for a session of {}",
+                self.sh_coeffs
+            )));
+        }
+        let nn = n as usize;
+        let floats = self.floats_per_gaussian() as usize * nn;
+        check_len("unit", t.unit.len(), nn)?;
+        if !t.unit.iter().all(|u| u.is_finite() && *u > 0.0) {
+            return Err(invalid("unit must be finite and > 0".into()));
+        }
+        for (what, data, want) in [
+            ("exp_avg", t.exp_avg, floats),
+            ("exp_avg_sq", t.exp_avg_sq, floats),
+            ("grad_accum", t.grad_accum, nn),
+            ("grad_count", t.grad_count, nn),
+        ] {
+            if let Some(d) = data {
+                check_len(what, d.len(), want)?;
+            }
+        }
+        self.allocate_scene(self.n_context + n)?;
+        self.write_scene(self.n_context, &t.gaussians);
+        let device = self.device.clone();
+        let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
+            let buffer = storage(&device, label, len as u64);
+            if let Some(d) = data {
+                s.upload(&buffer, 0, bytemuck::cast_slice(d));
+            }
+            buffer
+        };
+        let unit = fresh("unit", nn, Some(t.unit), self);
+        let exp_avg = fresh("exp_avg", floats, t.exp_avg, self);
+        let exp_avg_sq = fresh("exp_avg_sq", floats, t.exp_avg_sq, self);
+        let stats = fresh("gradient statistics", 2 * nn, None, self);
+        if let Some(accum) = t.grad_accum {
+            self.upload(&stats, 0, bytemuck::cast_slice(accum));
+        }
+        if let Some(count) = t.grad_count {
+            self.upload(&stats, 4 * n as u64, bytemuck::cast_slice(count));
+        }
+        self.trained = Trained {
+            len: n,
+            unit,
+            exp_avg,
+            exp_avg_sq,
+            stats,
+        };
+        let grad_floats = self.floats_per_gaussian() * (self.n_context + n) as u64;
+        self.grads = storage(&device, "gradients", grad_floats);
+        self.grads_extra = storage(&device, "extra gradients", grad_floats);
+        self.adam_steps = t.adam_steps;
+        self.extra_frame = None;
+        self.has_extra = false;
+        Ok(())
+    }
+
+    fn scene_buffer(&self) -> SceneBuffer {
+        SceneBuffer {
+            buffer: self.scene.clone(),
+            len: self.n_context + self.trained.len,
+            stride: self.capacity,
+            sh_coeffs: self.sh_coeffs,
+        }
+    }
+
+    fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
+        submit_checked(&self.device, &self.queue, encoder)
+    }
+
+    fn view(&self, view: usize) -> Result<&View, RasterError> {
+        let count = self.views.len();
+        self.views
+            .get(view)
+            .ok_or_else(|| invalid(format!("view {view} out of range ({count} views)")))
+    }
+
+    /// Submits the loss passes of view `view` on the forward output `pixels`.
+    fn encode_losses(&self, view: usize, pixels: &wgpu::Buffer) -> Result<(), RasterError> {
+        let v = self.view(view)?;
+        let view_buffers = ViewBuffers {
+            params: &v.params,
+            rgb: &v.rgb,
+            weight: &v.weight,
+            depth: v.depth.as_ref().unwrap_or(&self.placeholder),
+            previous: v.previous.as_ref().unwrap_or(&self.placeholder),
+        };
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        self.losses.encode(
+            &self.device,
+            &mut encoder,
+            &self.loss_buffers,
+            &view_buffers,
+            pixels,
+        );
+        self.submit(encoder)
+    }
+
+    /// Sizes the renderer's intersection buffers for every view of the current scene:
+    /// encodes each view's forward and reads the largest count once (one wait). Call it
+    /// where the loop waits anyway (at the start of a stage, after densification): steps
+    /// do not wait for their counts, and a frame with more intersections than room draws
+    /// only the background (docs/rasterizer.md, "Frames without a wait").
+    pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        for index in 0..self.views.len() {
+            let camera = self.views[index].camera;
+            renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        }
+        self.extra_frame = None;
+        self.check_frames(renderer).map(|_| ())
+    }
+
+    /// The renderer's check of the frames since the last one (16 bytes read back): how
+    /// many overflowed their intersection buffers (their step had no gradient but Adam's
+    /// moments still moved the parameters) and the room from now on, grown when the
+    /// largest frame came near it. Call it with the loss read-back.
+    pub fn check_frames(
+        &mut self,
+        renderer: &mut Renderer,
+    ) -> Result<IntersectionCheck, RasterError> {
+        let check = renderer.check_intersections()?;
+        self.traffic.read_back += std::mem::size_of::<[u32; 4]>() as u64;
+        Ok(check)
+    }
+
+    /// One training step on view `view`: forward, losses, backward, Adam.
+    pub fn step(&mut self, renderer: &mut Renderer, view: usize) -> Result<(), RasterError> {
+        self.forward_backward(renderer, view)?;
+        self.apply_adam()
+    }
+
+    /// The first half of a step: forward of view `view`, the losses and their pixel
+    /// gradient, backward into the gradient buffer. [`Self::apply_adam`] completes it
+    /// (with [`Self::render_at`] / [`Self::backward_at`] in between to add a second
+    /// render's gradient, as the semantic loss does).
+    pub fn forward_backward(
+        &mut self,
+        renderer: &mut Renderer,
+        view: usize,
+    ) -> Result<(), RasterError> {
+        let camera = self.view(view)?.camera;
+        let frame = renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        self.encode_losses(view, renderer.frame_pixels())?;
+        renderer.encode_backward(&frame, &self.loss_buffers.v_pixels, &self.grads)?;
+        self.extra_frame = None;
+        self.has_extra = false;
+        Ok(())
+    }
+
+    /// The losses of view `view` on given forward pixels (H·W·5) instead of a render:
+    /// returns the pixel gradient and the loss parts (for checking the loss kernels
+    /// against torch on chosen inputs).
+    pub fn loss_gradient(
+        &mut self,
+        view: usize,
+        pixels: &[f32],
+    ) -> Result<(Vec<f32>, [f32; LOSS_PARTS]), RasterError> {
+        let len = PIXEL_CHANNELS * (self.width * self.height) as usize;
+        check_len("pixels", pixels.len(), len)?;
+        self.view(view)?;
+        let input = storage(&self.device, "given pixels", len as u64);
+        self.upload(&input, 0, bytemuck::cast_slice(pixels));
+        self.encode_losses(view, &input)?;
+        let v_pixels = self.loss_buffers.v_pixels.clone();
+        let gradient = self.read(&[(&v_pixels, 0, 4 * len as u64)])?;
+        Ok((gradient, self.loss()?))
+    }
+
+    /// The pixels (H·W·5) of the last forward.
+    pub fn read_render(&mut self, renderer: &Renderer) -> Result<Vec<f32>, RasterError> {
+        let bytes = 4 * PIXEL_CHANNELS as u64 * (self.width * self.height) as u64;
+        self.read(&[(renderer.frame_pixels(), 0, bytes)])
+    }
+
+    /// Renders the current scene at `camera` (of the views' size) and reads the pixels
+    /// back; [`Self::backward_at`] then adds the gradient of a loss on them.
+    pub fn render_at(
+        &mut self,
+        renderer: &mut Renderer,
+        camera: &Camera,
+    ) -> Result<Vec<f32>, RasterError> {
+        if (camera.width, camera.height) != (self.width, self.height) {
+            return Err(invalid(format!(
+                "the camera must have the views' size {}x{}, got {}x{}",
+                self.width, self.height, camera.width, camera.height
+            )));
+        }
+        let frame = renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings)?;
+        self.extra_frame = Some(frame);
+        self.read_render(renderer)
+    }
+
+    /// Backward of [`Self::render_at`]'s frame for the pixel gradient `v_pixels` (H·W·5);
+    /// the next [`Self::apply_adam`] adds these gradients to the step's.
+    pub fn backward_at(
+        &mut self,
+        renderer: &mut Renderer,
+        v_pixels: &[f32],
+    ) -> Result<(), RasterError> {
+        check_len(
+            "v_pixels",
+            v_pixels.len(),
+            PIXEL_CHANNELS * (self.width * self.height) as usize,
+        )?;
+        let frame = self
+            .extra_frame
+            .take()
+            .ok_or_else(|| invalid("backward_at needs a render_at first".into()))?;
+        let v_extra = self.v_extra.clone();
+        self.upload(&v_extra, 0, bytemuck::cast_slice(v_pixels));
+        renderer.encode_backward(&frame, &v_extra, &self.grads_extra)?;
+        self.has_extra = true;
+        Ok(())
+    }
+
+    /// One Adam step with the gradients in the gradient buffer (plus the extra ones after
+    /// a [`Self::backward_at`]).
+    pub fn apply_adam(&mut self) -> Result<(), RasterError> {
+        self.adam_steps += 1;
+        let layout = AdamLayout {
+            n_context: self.n_context,
+            n_train: self.trained.len,
+            stride: self.capacity,
+            sh_coeffs: self.sh_coeffs,
+            has_extra: self.has_extra,
+        };
+        let params = self.config.adam.params(self.adam_steps, layout);
+        let uniform = self.adam_params.clone();
+        self.upload(&uniform, 0, bytemuck::bytes_of(&params));
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            let bindings = AdamBindings {
+                params: &self.adam_params,
+                scene: &self.scene,
+                grads: &self.grads,
+                grads_extra: &self.grads_extra,
+                exp_avg: &self.trained.exp_avg,
+                exp_avg_sq: &self.trained.exp_avg_sq,
+                unit: &self.trained.unit,
+                stats: &self.trained.stats,
+            };
+            self.adam
+                .encode(&self.device, &mut pass, &bindings, self.trained.len);
+        }
+        self.has_extra = false;
+        self.submit(encoder)
+    }
+
+    /// Adam on given gradients (for the context + trained scene, in the backward's
+    /// layout): what a step does after its backward, for checking the optimiser alone.
+    pub fn apply_gradients(&mut self, grads: &[f32]) -> Result<(), RasterError> {
+        let floats =
+            self.floats_per_gaussian() as usize * (self.n_context + self.trained.len) as usize;
+        check_len("gradients", grads.len(), floats)?;
+        let buffer = self.grads.clone();
+        self.upload(&buffer, 0, bytemuck::cast_slice(grads));
+        self.has_extra = false;
+        self.apply_adam()
+    }
+
+    /// The last step's loss parts: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
+    /// weight, whether L_geo applied].
+    pub fn loss(&mut self) -> Result<[f32; LOSS_PARTS], RasterError> {
+        let loss = self.loss_buffers.loss.clone();
+        let parts = self.read(&[(&loss, 0, 4 * LOSS_PARTS as u64)])?;
+        Ok(parts.try_into().expect("LOSS_PARTS floats"))
+    }
+
+    /// The scene's sections for Gaussians `first..first + n`, as read-back regions.
+    fn scene_regions(&self, first: u32, n: u32) -> Vec<(wgpu::Buffer, u64, u64)> {
+        let mut regions = Vec::new();
+        let mut start = 0;
+        for width in section_widths(self.sh_coeffs) {
+            regions.push((
+                self.scene.clone(),
+                4 * (start + width * first as u64),
+                4 * width * n as u64,
+            ));
+            start += width * self.capacity as u64;
+        }
+        regions
+    }
+
+    fn read_scene(&mut self, first: u32, n: u32) -> Result<Vec<f32>, RasterError> {
+        let regions = self.scene_regions(first, n);
+        let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
+            regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
+        self.read(&borrowed)
+    }
+
+    /// The whole scene, context then trained set, packed as [`SceneInput::packed`].
+    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
+        self.read_scene(0, self.n_context + self.trained.len)
+    }
+
+    /// The trained set's parameters alone, packed as [`SceneInput::packed`].
+    pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
+        self.read_scene(self.n_context, self.trained.len)
+    }
+
+    /// Reads the trained set and its optimiser state back (one round trip).
+    pub fn state(&mut self) -> Result<TrainState, RasterError> {
+        let n = self.trained.len as u64;
+        let floats = self.floats_per_gaussian() * n;
+        let mut regions = self.scene_regions(self.n_context, self.trained.len);
+        let t = &self.trained;
+        for (buffer, len) in [
+            (&t.unit, n),
+            (&t.exp_avg, floats),
+            (&t.exp_avg_sq, floats),
+            (&t.stats, 2 * n),
+        ] {
+            regions.push((buffer.clone(), 0, 4 * len));
+        }
+        let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
+            regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
+        let flat = self.read(&borrowed)?;
+        let (n, floats) = (n as usize, floats as usize);
+        let mut rest = flat.as_slice();
+        let mut take = |len: usize| {
+            let (head, tail) = rest.split_at(len);
+            rest = tail;
+            head.to_vec()
+        };
+        Ok(TrainState {
+            params: take(floats),
+            unit: take(n),
+            exp_avg: take(floats),
+            exp_avg_sq: take(floats),
+            grad_accum: take(n),
+            grad_count: take(n),
+            adam_steps: self.adam_steps,
+        })
+    }
+}

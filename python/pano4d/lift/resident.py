@@ -1,0 +1,301 @@
+"""The resident training loop: ``GaussianTrainer``'s optimisation with the Gaussians, Adam's
+moments and the stage's targets kept on the GPU (``pano4d._core.TrainSession``, Rust module
+``splat_core::train``).
+
+A step is forward → losses and their pixel gradient → backward → Adam, all on the device and
+submitted without waiting for the host; the view is drawn from the same seeded generator as
+``GaussianTrainer``'s, so the two trainers see the same views in the same order. The host
+reads back the loss every ``LOSS_EVERY`` steps (and at the last), the whole trained state at
+checkpoints (``state_dict``), densification and ``result()``. Densification reads the
+parameters, moments and gradient statistics back once per interval, runs the torch trainer's
+own decision (``split_and_prune``) and uploads the survivors and children (moments carried).
+
+The semantic loss (only with a feature model) needs the render on the host: on its steps the
+centre render and the moved render are read back, the feature model runs in torch, and the
+moved render's pixel gradient is uploaded and back-propagated on the device. It runs on every
+step (``sem_every = 1``, as the torch trainer) unless ``sem_every`` is raised.
+
+``ResidentTrainer`` has ``GaussianTrainer``'s constructor and public methods, so a lifting
+stage can use either; ``render_fn`` is accepted for that and not called (renders happen on the
+device). ``train_step`` returns the last loss read back, which is up to ``LOSS_EVERY − 1``
+steps old.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians
+from pano4d.lift.optimize import (
+    ADAM_EPS,
+    LAMBDA_RGB,
+    LEARNING_RATES,
+    RGB_L1,
+    RGB_SSIM,
+    Trainer,
+    densify_due,
+    moved_camera,
+    sem_alpha,
+    split_and_prune,
+)
+from pano4d.render import _core
+
+LOSS_EVERY = 10  # steps between loss read-backs (the progress bar's figure)
+# Learning-rate groups in TrainSession's order (means are trained as offsets in units of
+# each Gaussian's initial depth, as GaussianTrainer does).
+GROUPS = ("offsets", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+# GaussianTrainer uses torch.optim.Adam's default betas.
+ADAM_BETAS = tuple(inspect.signature(torch.optim.Adam).parameters["betas"].default)
+
+
+def pack(g: Gaussians) -> np.ndarray:
+    """The Gaussians as one float32 array in the shaders' SoA order (means, log-scales,
+    quaternions, opacity logits, SH)."""
+    parts = [t.detach().to("cpu", torch.float32).reshape(-1) for t in g.tensors().values()]
+    return np.ascontiguousarray(torch.cat(parts).numpy())
+
+
+def unpack(packed: np.ndarray, n: int, sh_coeffs: int, device: torch.device) -> Gaussians:
+    """Inverse of :func:`pack` for ``n`` Gaussians with ``sh_coeffs`` per channel."""
+    flat = torch.from_numpy(np.asarray(packed, dtype=np.float32)).to(device)
+    sizes = [3 * n, 3 * n, 4 * n, n, 3 * sh_coeffs * n]
+    means, log_scales, quats, opacity, sh = flat.split(sizes)
+    return Gaussians(
+        means.reshape(n, 3),
+        log_scales.reshape(n, 3),
+        quats.reshape(n, 4),
+        opacity.reshape(n),
+        sh.reshape(n, sh_coeffs, 3),
+    )
+
+
+def _flat(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
+
+
+def _camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.ascontiguousarray(camera.K.numpy()),
+        np.ascontiguousarray(camera.world_to_cam[:3].numpy()),
+    )
+
+
+class ResidentTrainer(Trainer):
+    """Optimises one set of Gaussians (optionally against a frozen context) on the GPU."""
+
+    sem_every = 1  # steps between semantic-loss evaluations (each reads two renders back)
+    overflowed_frames = 0  # steps whose frame outgrew the intersection buffers (no gradient)
+
+    def _start(self, gaussians: Gaussians) -> None:
+        g = gaussians.detach()
+        self._sh_coeffs = g.sh.shape[1]
+        ctx = Gaussians.empty(g.sh_degree) if self.context is None else self.context
+        if ctx.sh_degree > g.sh_degree:
+            raise ValueError(
+                f"the context's SH degree ({ctx.sh_degree}) is above the trained set's "
+                f"({g.sh_degree}); give the trained set at least the context's degree"
+            )
+        ctx = ctx.with_sh_degree(g.sh_degree)
+        bg = torch.zeros(3) if self.background is None else torch.as_tensor(self.background)
+        unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
+        self._session = _core().TrainSession(
+            pack(ctx),
+            len(ctx),
+            pack(g),
+            _flat(unit),
+            self._view_targets(),
+            [LEARNING_RATES[name] for name in GROUPS],
+            ADAM_BETAS,
+            ADAM_EPS,
+            (
+                LAMBDA_RGB * RGB_L1,
+                LAMBDA_RGB * RGB_SSIM,
+                self.knobs.lambda_temporal,
+                self.knobs.lambda_geo,
+            ),
+            [float(v) for v in bg.reshape(-1)],
+        )
+        self._session.reserve_frames()
+
+    def _view_targets(self) -> list[tuple[Any, ...]]:
+        v, k = self.views, self.knobs
+        temporal = k.lambda_temporal > 0 and v.previous is not None
+        out = []
+        for i, camera in enumerate(v.cameras):
+            weight = v.weights[i]
+            out.append(
+                (
+                    *_camera_args(camera),
+                    camera.width,
+                    camera.height,
+                    _flat(v.targets[i]),
+                    _flat(weight),
+                    _flat(v.depth[i]) if k.lambda_geo > 0 else None,
+                    _flat(v.previous[i]) if temporal and v.previous is not None else None,
+                    float(weight.sum().clamp(min=1e-6)),
+                )
+            )
+        return out
+
+    # --- one step --------------------------------------------------------------------------
+    def train_step(self) -> float:
+        index = self.next_view()
+        k = self.knobs
+        alpha = sem_alpha(self.step, k.iterations)
+        sem = (
+            k.lambda_sem > 0
+            and self.features is not None
+            and alpha > 0
+            and self.step % self.sem_every == 0
+        )
+        sem_loss = self._semantic_step(index, alpha) if sem else 0.0
+        if not sem:
+            self._session.step(index)
+        self.step += 1
+        if sem or self.step % LOSS_EVERY == 0 or self.step >= k.iterations:
+            loss = self._session.loss()
+            self.last_loss = float(loss[0]) + sem_loss
+            self.last_terms = self._terms(loss, sem_loss if sem else None)
+            # Steps do not wait for their intersection counts: a frame that outgrew the
+            # renderer's room drew only the background (no gradient that step). Counted
+            # here, and the room grows before the next frames.
+            self.overflowed_frames += self._session.check_frames()[0]
+        if densify_due(k, self.step):
+            self.densify_and_prune()
+        return self.last_loss
+
+    def _terms(self, loss: list[float], sem_loss: float | None) -> dict[str, float | torch.Tensor]:
+        """GaussianTrainer.last_terms from TrainSession.loss() ([L, L1, 1 − SSIM, L_temporal,
+        1 − Pearson, covered weight, whether L_geo applied]) and this step's λ_sem·L_sem."""
+        k = self.knobs
+        terms: dict[str, float | torch.Tensor] = {
+            "total": loss[0] + (sem_loss or 0.0), "l1": loss[1], "d_ssim": loss[2]
+        }
+        if k.lambda_temporal > 0 and self.views.previous is not None:
+            terms["temporal"] = loss[3]
+        if loss[6] > 0:
+            terms["geo"] = loss[4]
+        if sem_loss is not None:
+            terms["sem"] = sem_loss / k.lambda_sem
+        return terms
+
+    def _semantic_step(self, index: int, alpha: float) -> float:
+        """A step with L_sem: the device's losses and backward, then L_sem on the host from
+        the read-back renders, its pixel gradient back-propagated on the device, then Adam."""
+        assert self.features is not None
+        k, camera = self.knobs, self.views.cameras[index]
+        h, w = camera.height, camera.width
+        s = self._session
+        s.forward_backward(index)
+        centre = torch.from_numpy(s.read_render()).reshape(h, w, 5)[..., :3].to(self.device)
+        delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
+        moved = moved_camera(camera, delta * alpha * k.sem_scale)
+        pixels = torch.from_numpy(s.render_at(*_camera_args(moved))).reshape(h, w, 5)
+        moved_rgb = pixels[..., :3].to(self.device).requires_grad_(True)
+        loss = k.lambda_sem * (
+            1 - F.cosine_similarity(self.features.cls(centre), self.features.cls(moved_rgb), dim=0)
+        )
+        loss.backward()
+        assert moved_rgb.grad is not None
+        v_pixels = torch.zeros(h, w, 5)
+        v_pixels[..., :3] = moved_rgb.grad.cpu()
+        s.backward_at(_flat(v_pixels))
+        s.apply_adam()
+        return float(loss.detach())
+
+    # --- state on the host ---------------------------------------------------------------------
+    def _state(self) -> dict[str, Any]:
+        """The trained set and its optimiser state, read back (one round trip)."""
+        raw = self._session.state()
+        n, k = len(raw["unit"]), self._sh_coeffs
+        out: dict[str, Any] = {"adam_steps": int(raw["adam_steps"])}
+        for key in ("params", "exp_avg", "exp_avg_sq"):
+            out[key] = unpack(raw[key], n, k, self.device)
+        for key in ("unit", "grad_accum", "grad_count"):
+            out[key] = torch.from_numpy(raw[key]).to(self.device)
+        return out
+
+    def _upload(
+        self,
+        g: Gaussians,
+        unit: torch.Tensor,
+        exp_avg: Gaussians | None,
+        exp_avg_sq: Gaussians | None,
+        grad_accum: torch.Tensor | None,
+        grad_count: torch.Tensor | None,
+        adam_steps: int,
+    ) -> None:
+        self._session.set_trained(
+            pack(g),
+            _flat(unit),
+            None if exp_avg is None else pack(exp_avg),
+            None if exp_avg_sq is None else pack(exp_avg_sq),
+            None if grad_accum is None else _flat(grad_accum),
+            None if grad_count is None else _flat(grad_count),
+            adam_steps,
+        )
+        self._session.reserve_frames()
+
+    def result(self) -> Gaussians:
+        return unpack(self._session.params(), len(self._session), self._sh_coeffs, self.device)
+
+    # --- densify and prune ------------------------------------------------------------------
+    def densify_and_prune(self) -> None:
+        """GaussianTrainer's densify-and-prune on the read-back state; Adam's moments move
+        with their Gaussians (survivors keep theirs, split children start at zero)."""
+        with torch.no_grad():
+            s = self._state()
+            d = split_and_prune(
+                s["params"],
+                s["unit"],
+                s["grad_accum"],
+                s["grad_count"],
+                self.knobs.max_gaussians,
+                self.generator,
+                self.step,
+            )
+            self.last_densify = d.stats
+            moments = [s[key].map(d.carry) for key in ("exp_avg", "exp_avg_sq")]
+            self._upload(d.gaussians, d.unit, *moments, None, None, s["adam_steps"])
+
+    # --- checkpoints -------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        s = self._state()
+        return {
+            "resident": True,
+            "params": s["params"].to("cpu").tensors(),
+            "unit": s["unit"].cpu(),
+            "exp_avg": s["exp_avg"].to("cpu").tensors(),
+            "exp_avg_sq": s["exp_avg_sq"].to("cpu").tensors(),
+            "adam_steps": s["adam_steps"],
+            "generator": self.generator.get_state(),
+            "step": self.step,
+            "grad_accum": s["grad_accum"].cpu(),
+            "grad_count": s["grad_count"].cpu(),
+            "last_loss": self.last_loss,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if not state.get("resident"):
+            raise ValueError(
+                "this checkpoint was written by the torch trainer (GaussianTrainer), not the "
+                "resident one; resume it with the trainer that wrote it"
+            )
+        self._upload(
+            Gaussians(**state["params"]),
+            state["unit"],
+            Gaussians(**state["exp_avg"]),
+            Gaussians(**state["exp_avg_sq"]),
+            state["grad_accum"],
+            state["grad_count"],
+            int(state["adam_steps"]),
+        )
+        self.generator.set_state(state["generator"])
+        self.step = int(state["step"])
+        self.last_loss = float(state["last_loss"])

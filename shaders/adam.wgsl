@@ -1,0 +1,115 @@
+// One Adam step of the trained Gaussians, in place on the scene buffer, with the
+// operations of torch.optim.Adam (single-tensor path, float32) for each element:
+//
+//   m ← lerp(m, g, 1 − β1)                  (fma(1 − β1, g − m, m), as torch's lerp)
+//   v ← v·β2 + (1 − β2)·g·g                 (fma((1 − β2)·g, g, v·β2), as torch's addcmul)
+//   p ← p + (−lr / (1 − β1ᵗ)) · m / (sqrt(v) / sqrt(1 − β2ᵗ) + eps)
+//
+// The host computes the bias corrections in f64 from the step count, as torch does, and
+// passes them rounded to f32 (train/adam.rs). One learning rate per parameter group:
+// means, log-scales, quaternions, opacity logits, SH DC, SH rest (LEARNING_RATES in
+// python/pano4d/lift/optimize.py).
+//
+// Means: the torch trainer optimises offsets o with mean = anchor + o·unit (unit = each
+// Gaussian's initial distance from the centre). Its gradient is g_o = unit·g_mean, and
+// Adam's step Δo moves the mean by unit·Δo. So Adam here runs on g_o (the moments are
+// the torch trainer's moments of the offsets) and adds unit·Δo to the mean: the same
+// update in exact arithmetic, without storing anchors and offsets. The accumulated
+// densification statistic is torch's too: ‖g_o‖ and whether it is non-zero.
+//
+// The scene holds the frozen context first (`n_context` Gaussians, never updated) and the
+// trained set after it; the scene's SoA sections are `stride` long, the gradients'
+// `grad_len` (= context + trained), the moments' `n_train`.
+
+struct AdamParams {
+    n_context: u32,
+    n_train: u32,
+    stride: u32,
+    grad_len: u32,
+    sh_coeffs: u32,
+    // 1 when `grads_extra` (a second render's gradients, the semantic loss) is added.
+    has_extra: u32,
+    pad0: u32,
+    pad1: u32,
+    beta1_complement: f32,
+    beta2: f32,
+    beta2_complement: f32,
+    eps: f32,
+    bias2_sqrt: f32,
+    pad2: f32,
+    pad3: f32,
+    pad4: f32,
+    // −lr / (1 − β1ᵗ) per group: means, log-scales, quats, opacity, SH DC, SH rest.
+    neg_step: array<vec4<f32>, 2>,
+}
+
+@group(0) @binding(0) var<uniform> ap: AdamParams;
+// The scene, under the name gaussian.wgsl's helpers read.
+@group(0) @binding(1) var<storage, read_write> gaussians: array<f32>;
+@group(0) @binding(2) var<storage, read> grads: array<f32>;
+@group(0) @binding(3) var<storage, read> grads_extra: array<f32>;
+@group(0) @binding(4) var<storage, read_write> exp_avg: array<f32>;
+@group(0) @binding(5) var<storage, read_write> exp_avg_sq: array<f32>;
+@group(0) @binding(6) var<storage, read> unit: array<f32>;
+// Accumulated ‖g_o‖ (first n_train) and count of non-zero ones (next n_train).
+@group(0) @binding(7) var<storage, read_write> stats: array<f32>;
+// gaussian.wgsl's helpers also read the render parameters; Adam uses none of them, so this
+// is declared for them and never bound.
+@group(0) @binding(8) var<uniform> params: RenderParams;
+
+fn gradient(i: u32) -> f32 {
+    if ap.has_extra != 0u {
+        return grads[i] + grads_extra[i];
+    }
+    return grads[i];
+}
+
+// Updates the moments at `mi` with gradient g and returns the step for group `group`.
+fn adam_step(mi: u32, g: f32, group: u32) -> f32 {
+    let m = fma(ap.beta1_complement, g - exp_avg[mi], exp_avg[mi]);
+    let v = fma(ap.beta2_complement * g, g, exp_avg_sq[mi] * ap.beta2);
+    exp_avg[mi] = m;
+    exp_avg_sq[mi] = v;
+    let denom = sqrt(v) / ap.bias2_sqrt + ap.eps;
+    return (ap.neg_step[group / 4u][group % 4u] * m) / denom;
+}
+
+// Parameters `count` wide starting at section offsets (scene, gradient, moment) of one group.
+fn update_plain(scene_at: u32, grad_at: u32, moment_at: u32, count: u32, group: u32) {
+    for (var c = 0u; c < count; c++) {
+        gaussians[scene_at + c] += adam_step(moment_at + c, gradient(grad_at + c), group);
+    }
+}
+
+@compute @workgroup_size(256)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+        @builtin(local_invocation_index) lid: u32) {
+    let i = linear_workgroup(wid, nwg) * 256u + lid;
+    if i >= ap.n_train {
+        return;
+    }
+    let gi = ap.n_context + i;
+    let s = gaussian_offsets(ap.stride);
+    let g = gaussian_offsets(ap.grad_len);
+    let m = gaussian_offsets(ap.n_train);
+    let k = ap.sh_coeffs;
+
+    // Means, through the offsets (see the header).
+    let u = unit[i];
+    var norm2 = 0.0;
+    for (var c = 0u; c < 3u; c++) {
+        let g_offset = gradient(g.means + 3u * gi + c) * u;
+        norm2 += g_offset * g_offset;
+        gaussians[s.means + 3u * gi + c] += adam_step(m.means + 3u * i + c, g_offset, 0u) * u;
+    }
+    let norm = sqrt(norm2);
+    stats[i] += norm;
+    stats[ap.n_train + i] += select(0.0, 1.0, norm > 0.0);
+
+    update_plain(s.log_scales + 3u * gi, g.log_scales + 3u * gi, m.log_scales + 3u * i, 3u, 1u);
+    update_plain(s.quats + 4u * gi, g.quats + 4u * gi, m.quats + 4u * i, 4u, 2u);
+    update_plain(s.opacity + gi, g.opacity + gi, m.opacity + i, 1u, 3u);
+    update_plain(s.sh + 3u * k * gi, g.sh + 3u * k * gi, m.sh + 3u * k * i, 3u, 4u);
+    update_plain(s.sh + 3u * k * gi + 3u, g.sh + 3u * k * gi + 3u, m.sh + 3u * k * i + 3u,
+                 3u * (k - 1u), 5u);
+}

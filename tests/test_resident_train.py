@@ -1,0 +1,520 @@
+"""The resident training loop (splat-core's TrainSession, pano4d.lift.resident) against the
+torch trainer it replaces: each loss term's pixel gradient against torch autograd, Adam
+against torch.optim.Adam, K steps of both trainers from the same start, resume,
+densification's invariants, the semantic loss path and the host traffic of a step.
+
+All on the wgpu backend (lavapipe in CI)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians
+from pano4d.lift.initial import init_gaussians, init_sphere
+from pano4d.lift.optimize import (
+    ADAM_EPS,
+    LEARNING_RATES,
+    RGB_L1,
+    RGB_SSIM,
+    GaussianTrainer,
+    Knobs,
+    TrainViews,
+    split_and_prune,
+    ssim_loss,
+)
+from pano4d.lift.resident import ADAM_BETAS, GROUPS, ResidentTrainer, pack, unpack
+from pano4d.render import MIN_ALPHA_FOR_DEPTH, RenderOutput, _core, render
+from pano4d.resample import equirect_to_perspective
+from pano4d.sphere import view_layout
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def _render(g: Gaussians, camera: Camera, background: Any = None) -> RenderOutput:
+    return render(g, camera, background=background, backend="wgpu")
+
+
+def _flat(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to(torch.float32).reshape(-1).numpy())
+
+
+# --- the loss kernels against torch autograd -------------------------------------------------
+def _output(pixels: torch.Tensor) -> RenderOutput:
+    """The forward's (h, w, 5) pixels as pano4d.render returns them (depth = D / alpha)."""
+    rgb, alpha, accum = pixels[..., :3], pixels[..., 3], pixels[..., 4]
+    drawn = alpha > MIN_ALPHA_FOR_DEPTH
+    safe = torch.where(drawn, alpha, torch.ones_like(alpha))
+    return RenderOutput(rgb, alpha, torch.where(drawn, accum / safe, torch.zeros_like(alpha)))
+
+
+def _loss_case(h: int, w: int, seed: int, covered: float) -> tuple[TrainViews, torch.Tensor]:
+    """One view with random targets, 0/1 and fractional weights (a third of them zero), and
+    forward pixels whose alpha exceeds 0.5 on about a ``covered`` fraction."""
+    gen = torch.Generator().manual_seed(seed)
+    camera = Camera.from_fov(90.0, w, h, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    weight = torch.rand(1, h, w, generator=gen)
+    weight[weight < 0.33] = 0.0
+    weight[weight > 0.8] = 1.0
+    views = TrainViews(
+        [camera],
+        torch.rand(1, h, w, 3, generator=gen),
+        weight,
+        torch.rand(1, h, w, generator=gen) * 5 + 1,
+        torch.rand(1, h, w, 3, generator=gen),
+    )
+    pixels = torch.rand(h, w, 5, generator=gen)
+    below = torch.rand(h, w, generator=gen) > covered
+    pixels[..., 3] = torch.where(below, 0.5 * pixels[..., 3], 0.5 + 0.5 * pixels[..., 3])
+    pixels[1, 2, 3] = 0.0  # nothing drawn: depth 0, no gradient through D / alpha
+    pixels[..., 4] = pixels[..., 3] * (torch.rand(h, w, generator=gen) * 5 + 1)
+    return views, pixels
+
+
+def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> Any:
+    """A TrainSession of one dummy Gaussian on ``views`` (its render is never used)."""
+    g = Gaussians(
+        torch.tensor([[0.0, 0.0, 5.0]]),
+        torch.zeros(1, 3),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+        torch.zeros(1),
+        torch.zeros(1, 1, 3),
+    )
+    targets = []
+    for i, c in enumerate(views.cameras):
+        previous = None if views.previous is None else _flat(views.previous[i])
+        targets.append((
+            np.ascontiguousarray(c.K.numpy()), np.ascontiguousarray(c.world_to_cam[:3].numpy()),
+            c.width, c.height, _flat(views.targets[i]), _flat(views.weights[i]),
+            _flat(views.depth[i]), previous, float(views.weights[i].sum().clamp(min=1e-6)),
+        ))  # fmt: skip
+    return _core().TrainSession(
+        pack(Gaussians.empty(0)), 0, pack(g), np.ones(1, np.float32), targets,
+        [LEARNING_RATES[k] for k in GROUPS], ADAM_BETAS, ADAM_EPS, lambdas, [0.0, 0.0, 0.0],
+    )  # fmt: skip
+
+
+def _torch_gradient(views: TrainViews, pixels: torch.Tensor, knobs: Knobs) -> torch.Tensor:
+    """d loss_at / d pixels, through GaussianTrainer's own loss with ``pixels`` as the render."""
+    p = pixels.clone().requires_grad_(True)
+    trainer = GaussianTrainer(Gaussians.empty(0), views, knobs, lambda *_: _output(p))
+    trainer.loss_at(0).backward()
+    assert p.grad is not None
+    return p.grad
+
+
+def _device_gradient(
+    views: TrainViews, pixels: torch.Tensor, lambdas: tuple[float, float, float, float]
+) -> tuple[torch.Tensor, list[float]]:
+    session = _session(views, lambdas)
+    grad, parts = session.loss_gradient(0, _flat(pixels))
+    return torch.from_numpy(grad).reshape(pixels.shape), parts
+
+
+def _assert_close(device: torch.Tensor, reference: torch.Tensor, what: str) -> None:
+    """Agreement to float32 summation order: 1e-5 of the largest value (measured: 1e-6)."""
+    scale = float(reference.abs().max())
+    assert scale > 0, f"{what}: the reference gradient is zero, the case tests nothing"
+    torch.testing.assert_close(device, reference, rtol=0, atol=1e-5 * scale, msg=what)
+    # The borders: the reflect padding's mirrored taps land on the outer 5 pixels.
+    for region in (device[:5] - reference[:5], device[-5:] - reference[-5:],
+                   device[:, :5] - reference[:, :5], device[:, -5:] - reference[:, -5:]):
+        assert float(region.abs().max()) <= 1e-5 * scale, f"{what}: border"  # fmt: skip
+
+
+@pytest.mark.parametrize("size", [(20, 24), (9, 7)])
+def test_each_loss_terms_pixel_gradient_matches_torch_autograd(size: tuple[int, int]) -> None:
+    """L1, D-SSIM (kornia, reflect padding; a 5-tap window for the 7-pixel side), L_temporal
+    and L_geo (Pearson through depth = D / alpha), each alone, weights with zeros."""
+    h, w = size
+    views, pixels = _loss_case(h, w, seed=h, covered=0.7)
+    rgb_only = Knobs(iterations=1)
+    reference_rgb = _torch_gradient(views, pixels, rgb_only)
+    p = pixels[..., :3].clone().requires_grad_(True)
+    (RGB_SSIM * ssim_loss(p, views.targets[0], views.weights[0])).backward()
+    assert p.grad is not None
+    reference_ssim = torch.zeros_like(pixels)
+    reference_ssim[..., :3] = p.grad
+    cases = {
+        "ssim": ((0.0, RGB_SSIM, 0.0, 0.0), reference_ssim),
+        "l1": ((RGB_L1, 0.0, 0.0, 0.0), reference_rgb - reference_ssim),
+        "temporal": (
+            (0.0, 0.0, 0.1, 0.0),
+            _torch_gradient(views, pixels, Knobs(iterations=1, lambda_temporal=0.1))
+            - reference_rgb,
+        ),
+        "geo": (
+            (0.0, 0.0, 0.0, 0.05),
+            _torch_gradient(views, pixels, Knobs(iterations=1, lambda_geo=0.05)) - reference_rgb,
+        ),
+    }
+    for name, (lambdas, reference) in cases.items():
+        device, parts = _device_gradient(views, pixels, lambdas)
+        _assert_close(device, reference, name)
+    geo = cases["geo"][1]
+    assert float(geo[..., 3:].abs().max()) > 0 and float(geo[..., :3].abs().max()) == 0
+    # Every term together, with its loss value.
+    knobs = Knobs(iterations=1, lambda_temporal=0.1, lambda_geo=0.05)
+    device, parts = _device_gradient(views, pixels, (RGB_L1, RGB_SSIM, 0.1, 0.05))
+    _assert_close(device, _torch_gradient(views, pixels, knobs), "all terms")
+    out = _output(pixels)
+    trainer = GaussianTrainer(Gaussians.empty(0), views, knobs, lambda *_: out)
+    assert parts[0] == pytest.approx(float(trainer.loss_at(0)), rel=1e-5)
+    assert parts[6] == 1.0  # L_geo applied
+
+
+def test_geo_loss_follows_the_coverage_rule() -> None:
+    """L_geo applies only where the covered weight (weight · [alpha > 0.5]) sums past 16:
+    below that the device adds no depth gradient, as loss_at adds no term."""
+    views, pixels = _loss_case(20, 24, seed=3, covered=0.03)
+    covered = float((views.weights[0] * (pixels[..., 3] > 0.5)).sum())
+    assert 0 < covered <= 16
+    knobs = Knobs(iterations=1, lambda_geo=0.05)
+    device, parts = _device_gradient(views, pixels, (RGB_L1, RGB_SSIM, 0.0, 0.05))
+    reference = _torch_gradient(views, pixels, knobs)
+    assert parts[6] == 0.0 and parts[5] == pytest.approx(covered)
+    assert float(device[..., 3:].abs().max()) == 0.0 == float(reference[..., 3:].abs().max())
+    _assert_close(device, reference, "rgb terms without L_geo")
+
+
+# --- Adam ------------------------------------------------------------------------------------
+def _gaussians(n: int, sh_degree: int, seed: int) -> Gaussians:
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.randn(n, 3, generator=gen) + torch.tensor([0.0, 0.0, 6.0])
+    k = (sh_degree + 1) ** 2
+    return Gaussians(
+        means,
+        torch.randn(n, 3, generator=gen) * 0.3 - 1.0,
+        torch.randn(n, 4, generator=gen),
+        torch.randn(n, generator=gen),
+        torch.randn(n, k, 3, generator=gen) * 0.3,
+    )
+
+
+def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
+    """Five Adam steps on the device against torch.optim.Adam as GaussianTrainer sets it up
+    (per-group learning rates, eps 1e-15, means as offsets in units of the initial depth),
+    on gradients spanning three decades and one exact zero. The first step is bit-exact;
+    after it, moments and parameters agree to 4 float32 ulps of each group's scale (torch's
+    own vector lanes fuse the multiply-adds and its scalar tail does not, so exact equality
+    is not defined). The context is not touched."""
+    context, trained = _gaussians(5, 1, seed=0), _gaussians(7, 1, seed=1)
+    cam = Camera.from_fov(60.0, 16, 16, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    ones = torch.ones(1, 16, 16)
+    views = TrainViews([cam], torch.rand(1, 16, 16, 3), ones, ones)
+    knobs = Knobs(iterations=5)
+    reference = GaussianTrainer(trained, views, knobs, _render, context=context)
+    resident = ResidentTrainer(trained, views, knobs, _render, context=context)
+    n_all = len(context) + len(trained)
+    norms = torch.zeros(len(trained))
+    for step in range(5):
+        scale = 10.0 ** -(step % 3)
+        grads = _gaussians(n_all, 1, seed=10 + step).map(lambda t, s=scale: t * s)
+        grads.opacity_logits[len(context)] = 0.0  # a zero gradient: moments decay, no NaN
+        resident._session.apply_gradients(pack(grads))
+        g = grads[len(context):]
+        p = reference.params
+        p["offsets"].grad = g.means * reference.unit[:, None]  # autograd's d/d offsets
+        norms += torch.linalg.norm(p["offsets"].grad, dim=-1)
+        for name in ("log_scales", "quats", "opacity_logits"):
+            p[name].grad = getattr(g, name).clone()
+        p["sh_dc"].grad, p["sh_rest"].grad = g.sh[:, :1].clone(), g.sh[:, 1:].clone()
+        reference.optimiser.step()
+    state = resident._state()
+    expected = reference.result()
+    ulp = torch.finfo(torch.float32).eps
+    for name, got in state["params"].tensors().items():
+        want = expected.tensors()[name]
+        torch.testing.assert_close(got, want, rtol=4 * ulp, atol=4 * ulp * float(want.abs().max()))
+    for key, torch_key in (("exp_avg", "exp_avg"), ("exp_avg_sq", "exp_avg_sq")):
+        moments = state[key]
+        for group in GROUPS:
+            want = reference.optimiser.state[reference.params[group]][torch_key]
+            got = {
+                "offsets": moments.means,
+                "log_scales": moments.log_scales,
+                "quats": moments.quats,
+                "opacity_logits": moments.opacity_logits,
+                "sh_dc": moments.sh[:, :1],
+                "sh_rest": moments.sh[:, 1:],
+            }[group]
+            scale = float(want.abs().max())
+            torch.testing.assert_close(got, want, rtol=4 * ulp, atol=4 * ulp * scale,
+                                       msg=f"{key} {group}")  # fmt: skip
+    assert state["adam_steps"] == 5
+    # Densification's statistics: Σ ‖d/d offsets‖ and the steps where it was non-zero.
+    torch.testing.assert_close(state["grad_accum"], norms, rtol=4 * ulp, atol=0)
+    assert torch.equal(state["grad_count"], torch.full((len(trained),), 5.0))
+    scene = unpack(resident._session.scene(), n_all, 4, torch.device("cpu"))
+    for name, t in scene[: len(context)].tensors().items():
+        assert torch.equal(t, context.tensors()[name]), name
+
+
+# --- whole steps against the torch trainer -------------------------------------------------------
+def _problem(sh_degree: int = 1) -> tuple[Gaussians, TrainViews]:
+    """Four 24×24 views of a gradient-coloured sphere and Gaussians on it with random
+    orientations and anisotropic scales. (The initial facing discs have a symmetry, the
+    rotation about their normal, whose gradient is pure rounding noise; Adam turns noise
+    into ±lr steps in either trainer, so their trajectories are not comparable there.)"""
+    cams = view_layout(4, 90.0, 24)
+    ico = init_sphere(96, 3)
+    depth = torch.full((24, 48), 4.0)
+    v = torch.linspace(0, 1, 24)[:, None, None]
+    u = torch.linspace(0, 1, 48)[None, :, None]
+    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
+    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)
+    gen = torch.Generator().manual_seed(5)
+    g = Gaussians(
+        g.means,
+        g.log_scales + 0.3 * torch.randn(g.log_scales.shape, generator=gen),
+        torch.randn(g.quats.shape, generator=gen),
+        g.opacity_logits,
+        g.sh + 0.1 * torch.randn(g.sh.shape, generator=gen),
+    )
+    image = frame.permute(2, 0, 1)
+    targets = torch.stack([equirect_to_perspective(image, c).permute(1, 2, 0) for c in cams])
+    weights = torch.ones(4, 24, 24)
+    weights[:, :6] = 0.0  # a masked band, as the static stage masks the moving region
+    views = TrainViews(cams, targets, weights, torch.full((4, 24, 24), 4.0))
+    views.previous = (targets * 0.9).clamp(0, 1)
+    return g, views
+
+
+STEPS = 20
+
+
+def test_resident_trainer_follows_the_torch_trainer_for_k_steps() -> None:
+    """K = 20 steps of both trainers from one start on the same views (same seed), every
+    loss term on. Both render with the same wgpu kernels; what differs is float32 summation
+    order in the losses (the device's separable tree sums against kornia's convolutions and
+    torch's reductions, ~1e-7 relative per pixel gradient) and Adam's rounding (a few ulps).
+    Adam normalises each step, so a step's difference is the rounding of the step itself,
+    except where a gradient is near zero: there the two trainers' noise can give Adam steps
+    of different size (one opacity logit here, by 1.3e-3 = 0.026 lr). Measured per group,
+    ‖Δ‖ / ‖movement‖ is ≤ 2e-6 after 1 step, ≤ 5e-4 after 5, ≤ 1.3e-4 after 20 and
+    ≤ 7e-5 after 40: the differences do not compound, they stay a small fraction of the
+    movement. The tolerance is 1e-3 of the movement and, elementwise, 1e-2 of the largest
+    K-step change (K·lr, times the largest unit for means): ≥ 7× the measured figures."""
+    g, views = _problem()
+    knobs = Knobs(iterations=STEPS, lambda_temporal=0.1, lambda_geo=0.05)
+    expected = GaussianTrainer(g, views, knobs, _render, seed=3).run()
+    resident = ResidentTrainer(g, views, knobs, _render, seed=3)
+    got = resident.run()
+    assert resident.step == STEPS and math.isfinite(resident.last_loss)
+    unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
+    lr = {"means": LEARNING_RATES["offsets"] * float(unit.max()),
+          "log_scales": LEARNING_RATES["log_scales"], "quats": LEARNING_RATES["quats"],
+          "opacity_logits": LEARNING_RATES["opacity_logits"],
+          "sh": LEARNING_RATES["sh_dc"]}  # fmt: skip
+    for name, start in g.tensors().items():
+        a, b = got.tensors()[name], expected.tensors()[name]
+        moved = float((b - start).norm())
+        assert moved > 0, name
+        assert float((a - b).norm()) <= 1e-3 * moved, name
+        assert float((a - b).abs().max()) <= 1e-2 * STEPS * lr[name], name
+
+
+def test_resident_trainer_resumes_across_a_densification() -> None:
+    """state_dict after 7 of 12 steps, a new trainer, load_state_dict, the rest: the same
+    Gaussians as 12 steps in one go (densification at steps 4 and 8), up to the backward's
+    float-atomic summation order (docs/rasterizer.md, "Determinism"): three uninterrupted
+    runs differ by at most 8.6e-6 in any element on lavapipe, so the bound is 1e-4, while a
+    lost piece of state (moments, step count, statistics, generator) moves elements by
+    learning-rate steps (≥ 5e-4)."""
+    g, views = _problem()
+    knobs = Knobs(iterations=12, lambda_geo=0.05, densify=True, densify_every=4,
+                  max_gaussians=len(g) + 10)  # fmt: skip
+    expected = ResidentTrainer(g, views, knobs, _render, seed=3).run()
+    first = ResidentTrainer(g, views, knobs, _render, seed=3)
+    for _ in range(7):
+        first.train_step()
+    state = first.state_dict()
+    resumed = ResidentTrainer(g, views, knobs, _render, seed=3)
+    resumed.load_state_dict(state)
+    assert resumed.step == 7
+    got = resumed.run()
+    assert len(got) > len(g)
+    assert len(got) == len(expected)
+    for name, tensor in got.tensors().items():
+        assert float((tensor - expected.tensors()[name]).abs().max()) <= 1e-4, name
+    torch_state = GaussianTrainer(g, views, knobs, _render, seed=3).state_dict()
+    with pytest.raises(ValueError, match="torch trainer"):
+        resumed.load_state_dict(torch_state)
+
+
+def _moments(trainer: Any) -> dict[str, Gaussians]:
+    """Both trainers' Adam moments as Gaussians-shaped sets (means: the offsets')."""
+    if isinstance(trainer, ResidentTrainer):
+        s = trainer._state()
+        return {"exp_avg": s["exp_avg"], "exp_avg_sq": s["exp_avg_sq"]}
+    out = {}
+    for key in ("exp_avg", "exp_avg_sq"):
+        m = {name: trainer.optimiser.state[p][key] for name, p in trainer.params.items()}
+        out[key] = Gaussians(m["offsets"], m["log_scales"], m["quats"], m["opacity_logits"],
+                             torch.cat([m["sh_dc"], m["sh_rest"]], dim=1))  # fmt: skip
+    return out
+
+
+def _statistics(trainer: Any) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    if isinstance(trainer, ResidentTrainer):
+        s = trainer._state()
+        return s["unit"], s["grad_accum"], s["grad_count"]
+    return trainer.unit, trainer.grad_accum, trainer.grad_count
+
+
+@pytest.mark.parametrize("trainer_class", [ResidentTrainer, GaussianTrainer])
+def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_class: Any) -> None:
+    """One densify-and-prune after 3 steps, in both trainers: the shared decision
+    (split_and_prune) is applied exactly, transparent Gaussians go, the count stays within
+    the budget, nothing is NaN, survivors keep their Adam moments and split children start
+    at zero, the step count goes on, the statistics restart and the context is untouched."""
+    g, views = _problem()
+    context, trainable = g[: len(g) // 2], g[len(g) // 2 :].map(torch.clone)
+    trainable.opacity_logits[:3] = -20.0  # transparent: pruned
+    knobs = Knobs(iterations=10, lambda_geo=0.05, max_gaussians=len(trainable) + 4)
+    trainer = trainer_class(trainable, views, knobs, _render, context=context, seed=0)
+    for _ in range(3):
+        trainer.train_step()
+    before, moments = trainer.result(), _moments(trainer)
+    unit, accum, count = _statistics(trainer)
+    generator = torch.Generator()
+    generator.set_state(trainer.generator.get_state())
+    decision = split_and_prune(before, unit, accum, count, knobs.max_gaussians, generator)
+    trainer.densify_and_prune()
+    after, carried = trainer.result(), _moments(trainer)
+    assert bool(decision.child.any()) and bool((~decision.child).any())
+    assert len(after) == len(decision.gaussians) <= knobs.max_gaussians
+    assert bool((torch.sigmoid(after.opacity_logits) > 0.005).all())
+    for name, t in after.tensors().items():
+        assert torch.equal(t, decision.gaussians.tensors()[name]), name
+    for key in ("exp_avg", "exp_avg_sq"):
+        for name, t in carried[key].tensors().items():
+            old = moments[key].tensors()[name]
+            assert torch.isfinite(t).all(), (key, name)
+            survivors = ~decision.child
+            assert torch.equal(t[survivors], old[decision.source[survivors]]), (key, name)
+            assert bool((t[decision.child] == 0).all()), (key, name)
+        assert float(moments[key].means.abs().max()) > 0  # the carried moments are real
+    new_unit, new_accum, new_count = _statistics(trainer)
+    assert torch.equal(new_unit, decision.unit)
+    assert not bool(new_accum.any()) and not bool(new_count.any())
+    if isinstance(trainer, ResidentTrainer):
+        assert trainer._state()["adam_steps"] == 3
+        scene = unpack(trainer._session.scene(), len(context) + len(after), 4, torch.device("cpu"))
+        kept = scene[: len(context)]
+    else:
+        assert all(float(s["step"]) == 3 for s in trainer.optimiser.state.values())
+        assert trainer.context is not None
+        kept = trainer.context
+    for name, t in kept.tensors().items():
+        assert torch.equal(t, context.tensors()[name]), name
+    # And densification inside the loop (every 2 steps from 20 % to 70 %).
+    knobs.densify, knobs.densify_every = True, 2
+    trainer.run()
+    assert len(trainer.result()) <= knobs.max_gaussians and math.isfinite(trainer.last_loss)
+
+
+def _tiny_dinov2(folder: Any) -> Any:
+    import transformers
+    from transformers import Dinov2Config, Dinov2Model
+
+    from pano4d.config import FeaturesConfig
+    from pano4d.lift.features import make_feature_model
+
+    transformers.logging.set_verbosity_error()
+    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
+                          intermediate_size=32, patch_size=6, image_size=24)  # fmt: skip
+    torch.manual_seed(0)
+    Dinov2Model(config).save_pretrained(folder / "dino")
+    return make_feature_model(FeaturesConfig(backend="dinov2", weights=folder / "dino"))
+
+
+def test_semantic_loss_on_the_resident_path_follows_the_torch_trainer(tmp_path: Any) -> None:
+    """With a (tiny, random) DINOv2, L_sem from 54 % of the iterations: the resident trainer
+    reads both renders back, runs the feature model in torch and back-propagates the moved
+    render's pixel gradient on the device. Its result follows the torch trainer's as closely
+    as without L_sem, and differs from a run without it by far more than that."""
+    features = _tiny_dinov2(tmp_path)
+    g, views = _problem()
+    knobs = Knobs(iterations=8, lambda_sem=1.0, sem_scale=4.0)
+    expected = GaussianTrainer(g, views, knobs, _render, features=features, seed=1).run()
+    resident = ResidentTrainer(g, views, knobs, _render, features=features, seed=1)
+    got = resident.run()
+    plain = ResidentTrainer(g, views, knobs, _render, seed=1).run()
+    assert math.isfinite(resident.last_loss)
+    for name, start in g.tensors().items():
+        a, b = got.tensors()[name], expected.tensors()[name]
+        moved = float((b - start).norm())
+        assert float((a - b).norm()) <= 1e-3 * moved, name
+    assert float((got.means - plain.means).norm()) > 0.05 * float((got.means - g.means).norm())
+
+
+def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
+    """Between checkpoints a step uploads only Adam's per-step constants, and the loss (7
+    floats) and the renderer's frame check (4 words) are read back at most once every 10
+    steps: the session's traffic counter says so."""
+    g, views = _problem()
+    trainer = ResidentTrainer(g, views, Knobs(iterations=100, lambda_geo=0.05), _render)
+    start = trainer._session.traffic()
+    steps = 20
+    for _ in range(steps):
+        trainer.train_step()
+    uploaded, read_back = (a - b for a, b in zip(trainer._session.traffic(), start, strict=True))
+    assert 0 < uploaded <= 128 * steps
+    assert 0 < read_back <= 2 * (7 * 4 + 4 * 4)  # two loss reads, two frame checks
+    assert math.isfinite(trainer.last_loss)
+
+
+# --- the pipeline's default --------------------------------------------------------------------
+def test_pano4d_train_runs_the_resident_loop_by_default_and_resumes_only_its_own(
+    tmp_path: Any,
+) -> None:
+    """run_train on wgpu trains with the resident loop (its checkpoints say so); after a kill
+    it resumes to the same result as an uninterrupted run; the torch trainer refuses its
+    checkpoint with what to do; the resident loop refuses the torch rasteriser."""
+    import shutil
+
+    from pano4d import ply4d, synth
+    from pano4d.config import load_config
+    from pano4d.lift.checkpoints import TrainError
+    from pano4d.lift.pipeline import trainer_for
+    from pano4d.train import run_train
+
+    root = tmp_path / "scene"
+    synth.write_scene(root, synth.make_scene(0, 128, 64, 3, views=4, view_size=24))
+    tiny = {"view_size": 16, "init_stride": 4, "align_iterations": 20,
+            "gaussian_iterations": 12, "max_gaussians": 5000}  # fmt: skip
+
+    def config(name: str) -> Any:
+        out = tmp_path / name
+        shutil.copytree(root / "gt" / "frames", out / "animate" / "frames")
+        cfg = load_config(root / "scene.yaml")
+        depth = cfg.depth.model_copy(update={"backend": "file", "path": root / "depth.exr"})
+        return cfg.model_copy(update={"overrides": tiny, "output": out, "depth": depth})
+
+    run_train(config("a"), progress=False, checkpoint_every=4)
+    cfg = config("b")
+
+    def interrupt(stage: str, step: int) -> None:
+        if (stage, step) == ("static", 6):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_train(cfg, progress=False, checkpoint_every=4, on_step=interrupt)
+    state = torch.load(cfg.output / "checkpoints" / "static.pt", weights_only=False)
+    assert state["trainer_kind"] == "resident" and state["trainer"]["step"] == 4
+    with pytest.raises(TrainError, match=r"static\.pt: written by the resident trainer.*--trainer"):
+        run_train(cfg, progress=False, checkpoint_every=4, trainer="torch")
+    run_train(cfg, progress=False, checkpoint_every=4)
+    a, b = ply4d.read(tmp_path / "a" / "scene.ply4d"), ply4d.read(tmp_path / "b" / "scene.ply4d")
+    for t in range(a.num_times):
+        for name, tensor in a.at(t).tensors().items():
+            assert torch.allclose(tensor, b.at(t).tensors()[name], atol=1e-5), (t, name)
+    assert trainer_for("torch", None) == "torch" and trainer_for("wgpu", None) == "resident"
+    with pytest.raises(ValueError, match="renders with wgpu"):
+        trainer_for("torch", "resident")
