@@ -8,14 +8,19 @@ temporal flicker (mean |render_t − render_t−1| in the layout views, outside 
 moving region, the latter next to the true video's). Prints a table and writes
 bench/out/quality.json.
 
-    .venv/bin/python bench/quality.py [--presets draft balanced] [--width 1024] [--frames 4]
-        [--depth file|layout] [--backend wgpu|torch] [--trainer resident|torch]
-        [--json bench/out/quality.json]
+    .venv/bin/python bench/quality.py [--kind landscape|room] [--presets draft balanced]
+        [--width 1024] [--frames 4] [--depth file|layout] [--backend wgpu|torch]
+        [--trainer resident|torch] [--overrides JSON] [--maps]
+        [--json bench/out/quality_<kind>.json]
+
+``--overrides`` sets preset knobs for every preset run (as scene.yaml's ``overrides:``);
+``--maps`` adds where the quality is lost (bench/quality_maps.py) to each row.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import shutil
@@ -36,6 +41,7 @@ from pano4d.lift.align import FrameAlignment, sphere_for_views
 from pano4d.lift.pipeline import trainer_for
 from pano4d.resample import equirect_to_perspective, sphere_to_equirect
 from pano4d.sphere import view_layout
+from pano4d.synth.scene import SCENE_KINDS
 from pano4d.train import run_train
 
 OUT = Path(__file__).resolve().parent / "out"
@@ -88,11 +94,13 @@ def flicker(scene: ply4d.Scene4D, frames: list[np.ndarray], mask: np.ndarray, ba
 
 
 def bench_preset(preset: str, args: argparse.Namespace) -> dict:
-    root = OUT / "quality" / f"w{args.width}_l{args.frames}_s{args.seed}"
+    root = OUT / "quality" / f"{args.kind}_w{args.width}_l{args.frames}_s{args.seed}"
     if not (root / "scene.yaml").is_file():
-        scene = synth.make_scene(args.seed, args.width, args.width // 2, args.frames, views=8)
+        scene = synth.make_scene(
+            args.seed, args.width, args.width // 2, args.frames, views=8, kind=args.kind
+        )
         synth.write_scene(root, scene)
-    output = root / f"out_{preset}_{args.depth}"
+    output = root / f"out_{preset}_{args.depth}{args.tag}"
     if output.exists():
         shutil.rmtree(output)
     shutil.copytree(root / "gt" / "frames", output / "animate" / "frames")
@@ -102,6 +110,8 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
         update["depth"] = cfg.depth.model_copy(
             update={"backend": "file", "path": root / "depth.exr"}
         )
+    if args.overrides:
+        update["overrides"] = json.loads(args.overrides)
     cfg = cfg.model_copy(update=update)
     start = time.perf_counter()
     metrics = run_train(cfg, progress=False, render_backend=args.backend, trainer=args.trainer)
@@ -112,8 +122,20 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
     mask = read_mask(root / "mask.png", args.width, args.width // 2)
     cameras = view_layout(cfg.lift.views, cfg.lift.fov_deg, int(metrics["knobs"]["view_size"]))
     views = metrics["novel_views"]["by_displacement"]
+    maps = None
+    if args.maps:
+        from quality_maps import analyse
+
+        from pano4d.render import render
+
+        maps = analyse(
+            root, output, int(metrics["working_size"][0]),
+            lambda g, c: render(g, c, backend=args.backend),
+        )  # fmt: skip
     return {
         "preset": preset,
+        "kind": args.kind,
+        "overrides": json.loads(args.overrides) if args.overrides else {},
         "trainer": trainer_for(args.backend, args.trainer),
         "depth_backend": args.depth,
         "wall_s": wall,
@@ -127,11 +149,14 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
         "depth": depth_absrel(output, gt_depth, cameras),
         "flicker": flicker(scene, frames, mask, args.backend),
         "saving": metrics["saving"],
+        "novel_views": metrics["novel_views"]["views"],
+        "maps": maps,
     }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--kind", choices=sorted(SCENE_KINDS), default="landscape")
     parser.add_argument("--presets", nargs="+", default=["draft", "balanced"],
                         choices=["draft", "balanced", "max"])  # fmt: skip
     parser.add_argument("--width", type=int, default=1024)
@@ -141,8 +166,12 @@ def main() -> None:
     parser.add_argument("--backend", choices=["wgpu", "torch"], default="wgpu")
     parser.add_argument("--trainer", choices=["resident", "torch"],
                         help="default: resident with wgpu, torch with --backend torch")  # fmt: skip
-    parser.add_argument("--json", type=Path, default=OUT / "quality.json")
+    parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
+    parser.add_argument("--tag", default="", help="suffix of the output folders' names")
+    parser.add_argument("--maps", action="store_true", help="where the quality is lost")
+    parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
+    args.json = args.json or OUT / f"quality_{args.kind}.json"
 
     rows = [bench_preset(p, args) for p in args.presets]
     header = (f"{'preset':<9}{'wall s':>9}{'PSNR 1%':>9}{'SSIM 1%':>9}{'PSNR 5%':>9}"
@@ -159,7 +188,8 @@ def main() -> None:
     write_json_atomic(args.json, {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "torch": torch.__version__, "cuda": torch.cuda.is_available()},
-        "scene": {"width": args.width, "frames": args.frames, "seed": args.seed},
+        "scene": {"kind": args.kind, "width": args.width, "frames": args.frames,
+                  "seed": args.seed},
         "rows": rows,
     })  # fmt: skip
     print(f"wrote {args.json}")

@@ -384,8 +384,11 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_clas
     unit, accum, count = _statistics(trainer)
     generator = torch.Generator()
     generator.set_state(trainer.generator.get_state())
-    decision = split_and_prune(before, unit, accum, count, knobs.max_gaussians, generator)
+    decision = split_and_prune(
+        before, unit, accum, count, knobs.max_gaussians, generator, trainer.step
+    )
     trainer.densify_and_prune()
+    assert trainer.last_densify == decision.stats  # what the run's diagnosis records
     after, carried = trainer.result(), _moments(trainer)
     assert bool(decision.child.any()) and bool((~decision.child).any())
     assert len(after) == len(decision.gaussians) <= knobs.max_gaussians

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -78,26 +79,16 @@ def test_train_writes_the_run_files_with_a_shared_static_set(
 
 
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(
-    scene_dir: Path, tmp_path: Path
+    scene_dir: Path, tmp_path: Path, interrupt_train: Callable
 ) -> None:
     reference = _config(scene_dir, tmp_path / "a")
     run_train(reference, progress=False, render_backend="torch", checkpoint_every=4)
 
     cfg = _config(scene_dir, tmp_path / "b")
-    stops = [("static", 6), ("dynamic", 5)]
-
-    def interrupt(stage: str, step: int) -> None:
-        if stops and (stage, step) == stops[0]:
-            stops.pop(0)
-            raise KeyboardInterrupt
-
-    for _ in range(2):
-        with pytest.raises(KeyboardInterrupt):
-            run_train(cfg, progress=False, render_backend="torch", checkpoint_every=4,
-                      on_step=interrupt)  # fmt: skip
+    interrupt_train(cfg, [("static", 6), ("dynamic", 5)])
     assert (tmp_path / "b" / "checkpoints" / "static.pt").is_file()
     assert not (tmp_path / "b" / "scene.ply4d").exists()
-    run_train(cfg, progress=False, render_backend="torch", checkpoint_every=4, on_step=interrupt)
+    run_train(cfg, progress=False, render_backend="torch", checkpoint_every=4)
 
     a = ply4d.read(tmp_path / "a" / "scene.ply4d")
     b = ply4d.read(tmp_path / "b" / "scene.ply4d")

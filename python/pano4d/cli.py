@@ -154,11 +154,17 @@ def synth(
     frames: Annotated[int, typer.Option(min=1, help="Number of animated frames L.")] = 14,
     seed: Annotated[int, typer.Option(help="Random seed: same seed, same scene.")] = 0,
     views: Annotated[int, typer.Option(help="Ground-truth novel views to render.")] = 8,
+    kind: Annotated[
+        str, typer.Option(help="Scene kind: landscape (outdoor) or room (indoor).")
+    ] = "landscape",
 ) -> None:
-    """Write a synthetic outdoor scene with exact depth, motion mask, animation and test views."""
+    """Write a synthetic scene with exact depth, motion mask, animation and test views."""
     from pano4d import synth as synth_mod
+    from pano4d.synth.scene import SCENE_KINDS
 
-    path = synth_mod.run_synth(out, width, synth_height(width, height), frames, seed, views)
+    if kind not in SCENE_KINDS:
+        fail(f"--kind must be one of {', '.join(SCENE_KINDS)}, got {kind!r}")
+    path = synth_mod.run_synth(out, width, synth_height(width, height), frames, seed, views, kind)
     console.print(f"wrote {path}")
 
 

@@ -3,8 +3,9 @@
 ``output/scene.ply4d`` (the static set once, a dynamic set per timestamp), ``preview.mp4``
 (a turntable at the origin, then on a small orbit), ``contact.png`` (ground-truth views
 beside their renders when gt/views.json lies beside the panorama, else test views of the
-moving region at a few times) and ``metrics.json`` (timings, Gaussian counts, sizes, what
-storing the static part once saved, novel-view PSNR/SSIM).
+moving region at a few times), ``metrics.json`` (timings, Gaussian counts, sizes, what
+storing the static part once saved, novel-view PSNR/SSIM) and the diagnosis of every
+optimisation (``lift.diagnosis``: densify.jsonl, losses.json, loss.png).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pano4d.config import config_hash
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image, write_contact_sheet, write_video
+from pano4d.lift.diagnosis import write_diagnosis
 from pano4d.lift.optimize import moved_camera
 from pano4d.lift.pipeline import (
     Alignment,
@@ -43,7 +45,8 @@ CONTACT_TIMES = 3
 
 def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
     """Write every output file of a lifted scene; returns the metrics (also metrics.json,
-    written last). ``on_step("export", n)`` is called after the n-th file."""
+    written last). ``on_step("export", n)`` is called after the n-th file
+    (the three diagnosis files count as one)."""
     inputs, alignment, initial = lifted.inputs, lifted.alignment, lifted.initial
     static, dynamic = lifted.static, lifted.dynamic
     start = time.perf_counter()
@@ -97,6 +100,9 @@ def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
                 labels.append(f"t={t}")
         columns = len(test)
     write_contact_sheet(out / "contact.png", tiles, columns, labels)
+    wrote()
+    stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
+    write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
     wrote()
     timings = {**lifted.timings, "export": time.perf_counter() - start}
 

@@ -18,6 +18,8 @@ the iterations: prune near-transparent Gaussians, split those with the largest a
 position gradient into two smaller ones, and keep the count within ``max_gaussians``
 (``split_and_prune``, shared with the resident trainer). Adam's moments move with their
 Gaussians: survivors keep theirs, split children start at zero, the step count goes on.
+For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last loss terms in
+``last_terms`` and its last densify-and-prune's counts in ``last_densify``.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
 Adam moments, the view generator, the step), so a resumed run continues bit-for-bit.
 """
@@ -35,6 +37,7 @@ import torch.nn.functional as F
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
+from pano4d.lift.diagnosis import DensifyStats
 
 LAMBDA_RGB = 1.0
 RGB_L1, RGB_SSIM = 0.8, 0.2  # L_rgb's mix
@@ -144,6 +147,7 @@ class Densified:
     unit: torch.Tensor  # (M,) offset units, carried from the source Gaussian
     source: torch.Tensor  # (M,) row of the Gaussian before, that each row comes from
     child: torch.Tensor  # (M,) bool: one of the two children of a split
+    stats: DensifyStats  # the counts, for the run's diagnosis
 
     def carry(self, state: torch.Tensor) -> torch.Tensor:
         """Per-Gaussian optimiser state (one row per Gaussian) moved with the Gaussians:
@@ -160,17 +164,19 @@ def split_and_prune(
     grad_count: torch.Tensor,
     max_gaussians: int,
     generator: torch.Generator,
+    step: int,
 ) -> Densified:
-    """One densify-and-prune (both trainers call this): drop near-transparent Gaussians,
-    split those with the largest mean position gradient into two smaller jittered
-    children, and keep at most ``max_gaussians`` (the most opaque)."""
+    """One densify-and-prune (both trainers call this, after ``step`` steps): drop
+    near-transparent Gaussians, split those with the largest mean position gradient into two
+    smaller jittered children, and keep at most ``max_gaussians`` (the most opaque)."""
     keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
     mean_grad = grad_accum / grad_count.clamp(min=1)
     room = max_gaussians - int(keep.sum())
     split = torch.zeros_like(keep)
+    candidates = keep & (mean_grad > 0)
+    share = int(candidates.sum()) // 10  # at most a tenth of the candidates split at once
     if room > 0:
-        candidates = keep & (mean_grad > 0)
-        count = min(room, int(candidates.sum()) // 10)
+        count = min(room, share)
         if count > 0:
             score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
             split[torch.topk(score, count).indices] = True
@@ -197,11 +203,19 @@ def split_and_prune(
             children.append(torch.ones(len(parent), dtype=torch.bool, device=g.device))
     merged = Gaussians.cat(parts)
     merged_units, source, child = torch.cat(units), torch.cat(sources), torch.cat(children)
+    grown = len(merged)
     if len(merged) > max_gaussians:
         top = torch.topk(merged.opacity_logits, max_gaussians).indices
         merged, merged_units = merged[top], merged_units[top]
         source, child = source[top], child[top]
-    return Densified(merged, merged_units, source, child)
+    stats = DensifyStats(
+        step=step, before=len(g), pruned=int((~keep).sum()), split=int(split.sum()),
+        clipped=grown - len(merged), after=len(merged), budget=max_gaussians,
+        candidates=int(candidates.sum()),
+        threshold=float(mean_grad[split].min()) if split.any() else None,
+        limit="share" if share <= room else "budget",
+    )  # fmt: skip
+    return Densified(merged, merged_units, source, child, stats)
 
 
 def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
@@ -239,6 +253,9 @@ class Trainer(ABC):
         self.step = 0
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
+        # For the diagnosis: diagnosis.TERMS names → values (tensors, read when logged).
+        self.last_terms: dict[str, float | torch.Tensor] = {}
+        self.last_densify: DensifyStats | None = None
         self._start(gaussians)
 
     @abstractmethod
@@ -335,14 +352,18 @@ class GaussianTrainer(Trainer):
         target, weight = v.targets[index], v.weights[index]
         wsum = weight.sum().clamp(min=1e-6)
         l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
-        loss = LAMBDA_RGB * (RGB_L1 * l1 + RGB_SSIM * ssim_loss(rgb, target, weight))
+        d_ssim = ssim_loss(rgb, target, weight)
+        loss = LAMBDA_RGB * (RGB_L1 * l1 + RGB_SSIM * d_ssim)
+        terms = {"l1": l1, "d_ssim": d_ssim}
         if k.lambda_temporal > 0 and v.previous is not None:
             temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum
             loss = loss + k.lambda_temporal * temporal
+            terms["temporal"] = temporal
         if k.lambda_geo > 0:
             covered = weight * (out.alpha.detach() > 0.5)
             if covered.sum() > 16:
-                loss = loss + k.lambda_geo * pearson_loss(depth, v.depth[index], covered)
+                terms["geo"] = pearson_loss(depth, v.depth[index], covered)
+                loss = loss + k.lambda_geo * terms["geo"]
         alpha = sem_alpha(self.step, k.iterations)
         if k.lambda_sem > 0 and self.features is not None and alpha > 0:
             delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
@@ -350,7 +371,9 @@ class GaussianTrainer(Trainer):
             moved_rgb = self.render_fn(self._scene(), moved, self.background).rgb
             centre = self.features.cls(rgb.detach())
             shifted = self.features.cls(moved_rgb)
-            loss = loss + k.lambda_sem * (1 - F.cosine_similarity(centre, shifted, dim=0))
+            terms["sem"] = 1 - F.cosine_similarity(centre, shifted, dim=0)
+            loss = loss + k.lambda_sem * terms["sem"]
+        self.last_terms = {"total": loss.detach(), **{n: t.detach() for n, t in terms.items()}}
         return loss
 
     def train_step(self) -> float:
@@ -379,7 +402,9 @@ class GaussianTrainer(Trainer):
                 self.grad_count,
                 self.knobs.max_gaussians,
                 self.generator,
+                self.step,
             )
+            self.last_densify = d.stats
             before = {name: self.optimiser.state.get(p) for name, p in self.params.items()}
             # Offsets restart from zero at the new positions; Adam's moments (kept in offset
             # units, and each Gaussian keeps its unit) move with their Gaussians.

@@ -14,7 +14,9 @@ after a kill skips what is done and resumes an optimisation from its last checkp
                         masked out;
 6. ``fit_dynamic``      per timestamp, the dynamic set, warm-started from t − 1 and
                         optimised against the frozen static set, in the views that see it;
-then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json.
+then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json, and
+each optimisation's ``TrainLog`` (``lift.diagnosis``: loss terms, densify-and-prune counts,
+kept in the stage checkpoints with the trainer) as densify.jsonl, losses.json and loss.png.
 
 The lifting works at the resolution the views need: frames are area-downsampled to an
 equirect whose pixel matches a view pixel (``view_size`` over ``fov_deg``), never above the
@@ -42,6 +44,7 @@ from pano4d.images import read_image
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.depth import make_depth_backend
+from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
 from pano4d.lift.optimize import (
@@ -343,19 +346,24 @@ def views_of_frame(
 def run_trainer(
     trainer: Trainer,
     kind: str,
+    log: TrainLog,
     checkpoints: Checkpoints,
     name: str,
-    label: str,
     bars: Bars,
     on_step: StepHook | None,
     extra: Callable[[], dict[str, Any]],
 ) -> Gaussians:
-    """Run a trainer (of ``kind``) with a progress bar and a checkpoint every
-    ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it)."""
-    task = bars.task(label, trainer.knobs.iterations, trainer.step)
+    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOG_EVERY steps
+    and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
+    ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too)."""
+    task = bars.task(log.name, trainer.knobs.iterations, trainer.step)
 
     def step(tr: Trainer) -> None:
         task.update(tr.step, loss=tr.last_loss)
+        if tr.step % LOG_EVERY == 0 or tr.step == tr.knobs.iterations:
+            log.record_loss(tr.step, tr.last_terms)
+        if tr.last_densify is not None and tr.last_densify.step == tr.step:
+            log.densify.append(tr.last_densify)
         if tr.step % checkpoints.every == 0 and tr.step < tr.knobs.iterations:
             state = {**extra(), "trainer": tr.state_dict(), "trainer_kind": kind}
             checkpoints.save(name, state)
@@ -370,6 +378,7 @@ class StaticSet:
     gaussians: Gaussians
     seconds: float  # optimisation time, over every resumed part
     per_step: float  # seconds per step of this run (what whole-timestamp training would cost)
+    log: TrainLog
 
 
 def fit_static(
@@ -387,7 +396,8 @@ def fit_static(
     if "done" in state:
         checkpoints.resumed("static", step=iterations)
         done = Gaussians.from_numpy(state["done"], inputs.device)
-        return StaticSet(done, state["seconds"], state["per_step"])
+        log = TrainLog.from_dict(state["log"])
+        return StaticSet(done, state["seconds"], state["per_step"], log)
     views = views_of_frame(
         inputs,
         0,
@@ -403,7 +413,10 @@ def fit_static(
         features=make_feature_model(inputs.cfg.features, inputs.device),
         seed=inputs.cfg.seed,
     )
-    resume(trainer, state, inputs.trainer, checkpoints.path("static"))
+    log = TrainLog("static", len(initial))
+    if "trainer" in state:
+        resume(trainer, state, inputs.trainer, checkpoints.path("static"))
+        log = TrainLog.from_dict(state["log"])
     checkpoints.resumed("static", step=trainer.step)
     start, first_step = time.perf_counter(), trainer.step
 
@@ -411,14 +424,15 @@ def fit_static(
         return float(state["seconds"]) + time.perf_counter() - start
 
     result = run_trainer(
-        trainer, inputs.trainer, checkpoints, "static", "static set", bars, on_step,
-        lambda: {"seconds": seconds()},
+        trainer, inputs.trainer, log, checkpoints, "static", bars, on_step,
+        lambda: {"seconds": seconds(), "log": log.to_dict()},
     )  # fmt: skip
     per_step = (time.perf_counter() - start) / max(1, trainer.step - first_step)
-    checkpoints.save(
-        "static", {"done": result.to_numpy(), "seconds": seconds(), "per_step": per_step}
-    )
-    return StaticSet(result, seconds(), per_step)
+    checkpoints.save("static", {
+        "done": result.to_numpy(), "seconds": seconds(), "per_step": per_step,
+        "log": log.to_dict(),
+    })  # fmt: skip
+    return StaticSet(result, seconds(), per_step, log)
 
 
 @dataclass(frozen=True)
@@ -428,6 +442,7 @@ class DynamicSets:
     # Seconds per step when a step renders static + dynamic, as whole-timestamp training
     # would; None when nothing was optimised.
     full_scene_step: float | None
+    logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
 
 
 def dynamic_iterations(full: int, t: int) -> int:
@@ -445,15 +460,16 @@ def fit_dynamic(
     bars: Bars,
     on_step: StepHook | None,
 ) -> DynamicSets:
-    state = checkpoints.load("dynamic") or {"done": [], "seconds": 0.0}
+    state = checkpoints.load("dynamic") or {"done": [], "seconds": 0.0, "logs": []}
     done = [Gaussians.from_numpy(d, inputs.device) for d in state["done"]]
+    logs = [TrainLog.from_dict(d) for d in state["logs"]]  # the one in progress last
     total = len(inputs.frames)
     checkpoints.resumed("dynamic", t=len(done), step=0)
     cameras = inputs.cameras
     seeing = [i for i, c in enumerate(cameras) if float(inputs.moving_in_view(c).max()) > 0]
     cams = [cameras[i] for i in seeing]
     if len(initial) == 0 or not cams:
-        return DynamicSets([initial.detach() for _ in range(total)], 0.0, None)
+        return DynamicSets([initial.detach() for _ in range(total)], 0.0, None, [])
     full = inputs.knobs.gaussian_iterations
     budget = inputs.knobs.max_gaussians - len(static)
     features = make_feature_model(inputs.cfg.features, inputs.device)
@@ -463,7 +479,10 @@ def fit_dynamic(
         return float(state["seconds"]) + time.perf_counter() - start
 
     def saved() -> dict[str, Any]:
-        return {"done": [g.to_numpy() for g in done], "seconds": seconds(), "t": len(done)}
+        return {
+            "done": [g.to_numpy() for g in done], "seconds": seconds(), "t": len(done),
+            "logs": [log.to_dict() for log in logs],
+        }  # fmt: skip
 
     h, w = cameras[0].height, cameras[0].width
     for t in range(len(done), total):
@@ -486,15 +505,15 @@ def fit_dynamic(
         if "trainer" in state and state.get("t") == t:
             resume(trainer, state, inputs.trainer, checkpoints.path("dynamic"))
             checkpoints.resumed("dynamic", t=t, step=trainer.step)
-        label = f"dynamic t={t}"
+        else:
+            logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
+        log = logs[t]
         done.append(
-            run_trainer(
-                trainer, inputs.trainer, checkpoints, "dynamic", label, bars, on_step, saved
-            )
+            run_trainer(trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved)
         )
         checkpoints.save("dynamic", saved())
     steps = sum(dynamic_iterations(full, t) for t in range(total))
-    return DynamicSets(done, seconds(), seconds() / steps)
+    return DynamicSets(done, seconds(), seconds() / steps, logs)
 
 
 # --- the phase -------------------------------------------------------------------------------

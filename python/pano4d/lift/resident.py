@@ -159,7 +159,9 @@ class ResidentTrainer(Trainer):
             self._session.step(index)
         self.step += 1
         if sem or self.step % LOSS_EVERY == 0 or self.step >= k.iterations:
-            self.last_loss = float(self._session.loss()[0]) + sem_loss
+            loss = self._session.loss()
+            self.last_loss = float(loss[0]) + sem_loss
+            self.last_terms = self._terms(loss, sem_loss if sem else None)
             # Steps do not wait for their intersection counts: a frame that outgrew the
             # renderer's room drew only the background (no gradient that step). Counted
             # here, and the room grows before the next frames.
@@ -167,6 +169,21 @@ class ResidentTrainer(Trainer):
         if densify_due(k, self.step):
             self.densify_and_prune()
         return self.last_loss
+
+    def _terms(self, loss: list[float], sem_loss: float | None) -> dict[str, float | torch.Tensor]:
+        """GaussianTrainer.last_terms from TrainSession.loss() ([L, L1, 1 − SSIM, L_temporal,
+        1 − Pearson, covered weight, whether L_geo applied]) and this step's λ_sem·L_sem."""
+        k = self.knobs
+        terms: dict[str, float | torch.Tensor] = {
+            "total": loss[0] + (sem_loss or 0.0), "l1": loss[1], "d_ssim": loss[2]
+        }
+        if k.lambda_temporal > 0 and self.views.previous is not None:
+            terms["temporal"] = loss[3]
+        if loss[6] > 0:
+            terms["geo"] = loss[4]
+        if sem_loss is not None:
+            terms["sem"] = sem_loss / k.lambda_sem
+        return terms
 
     def _semantic_step(self, index: int, alpha: float) -> float:
         """A step with L_sem: the device's losses and backward, then L_sem on the host from
@@ -241,7 +258,9 @@ class ResidentTrainer(Trainer):
                 s["grad_count"],
                 self.knobs.max_gaussians,
                 self.generator,
+                self.step,
             )
+            self.last_densify = d.stats
             moments = [s[key].map(d.carry) for key in ("exp_avg", "exp_avg_sq")]
             self._upload(d.gaussians, d.unit, *moments, None, None, s["adam_steps"])
 

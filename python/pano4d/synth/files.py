@@ -14,7 +14,7 @@ from pano4d.progress import Bars, Task
 from pano4d.synth.scene import SynthScene, make_scene
 
 SCENE_YAML = """\
-# Synthetic scene written by `pano4d synth` (seed {seed}). Train with: pano4d train scene.yaml
+# Synthetic {kind} written by `pano4d synth` (seed {seed}). Train with: pano4d train scene.yaml
 panorama: panorama.png
 regions:
   - mask: mask.png          # white = moves ({moving})
@@ -66,6 +66,7 @@ def write_scene(
     write_json_atomic(
         gt / "views.json",
         {
+            "kind": scene.kind,
             "seed": scene.seed,
             "frames": len(scene.frames),
             "scene": scene.world.metadata(),
@@ -78,6 +79,7 @@ def write_scene(
     write_text_atomic(
         yaml_path,
         SCENE_YAML.format(
+            kind=scene.kind,
             seed=scene.seed,
             moving=scene.world.moving_parts,
             direction=hint.direction_deg,
@@ -90,10 +92,14 @@ def write_scene(
     return yaml_path
 
 
-def run_synth(out: Path, width: int, height: int, frames: int, seed: int, views: int = 8) -> Path:
-    """``pano4d synth``: make the scene and write it with a progress bar; returns scene.yaml."""
+def run_synth(
+    out: Path, width: int, height: int, frames: int, seed: int, views: int = 8,
+    kind: str = "landscape",
+) -> Path:  # fmt: skip
+    """``pano4d synth``: make the scene (of ``kind``, see SCENE_KINDS) and write it with a
+    progress bar; returns scene.yaml."""
     steps = 3 + 1 + frames + 1  # make_scene stages, panorama files, frames, views
     with Bars(transient=True) as bars:
-        task = bars.task(f"synth {width}x{height}, {frames} frames", steps)
-        scene = make_scene(seed, width, height, frames, views=views, progress=task)
+        task = bars.task(f"synth {kind} {width}x{height}, {frames} frames", steps)
+        scene = make_scene(seed, width, height, frames, views=views, kind=kind, progress=task)
         return write_scene(out, scene, progress=task)

@@ -22,18 +22,17 @@ import torch
 
 from pano4d.synth.objects import OBJECT_COLOURS, OBJECT_KINDS, SceneObject
 from pano4d.synth.shading import (
-    CLOUD_LOG_RHO,
     CLOUD_REPEATS,
-    CLOUD_TEXELS,
     Sky,
     Water,
+    cloud_texture,
     fog,
     ground_albedo,
     lighting,
 )
 from pano4d.synth.terrain import FLAT_RADIUS, Terrain
 from pano4d.synth.textures import TiledNoise, fft_noise, normalize, periodic, rgb
-from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint
+from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint, shade_split
 
 CAMERA_HEIGHT = 2.0
 
@@ -76,10 +75,7 @@ class Landscape:
         self.terrain = Terrain(gen, self.camera_height)
         detail = torch.stack([fft_noise(gen, 512, 512, e, largest=128.0) for e in (1.2, 0.9)])
         self.detail = TiledNoise(periodic(detail))
-        rows = round(
-            (CLOUD_LOG_RHO[1] - CLOUD_LOG_RHO[0]) / (2 * math.pi / CLOUD_REPEATS) * CLOUD_TEXELS
-        )
-        clouds = periodic(fft_noise(gen, rows, CLOUD_TEXELS, 1.75, largest=CLOUD_TEXELS / 2)[None])
+        clouds = cloud_texture(gen)
 
         # Lake: an ellipse on the meadow with a noisy shore, its long axis pointing away from
         # the camera, which stands a few metres from the water.
@@ -263,14 +259,7 @@ class Landscape:
 
     def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
         """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
-        o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
-        rgb_out = torch.empty(d.shape[0], 3)
-        moving = self.moves(hits.label)
-        static = (~moving).nonzero()[:, 0]
-        rgb_out[static] = self.shade_static(o, d[static], hits.subset(static))
-        dyn = moving.nonzero()[:, 0]
-        rgb_out[dyn] = self.moving_shader(o, d[dyn], hits.subset(dyn))(time)
-        return rgb_out
+        return shade_split(self, self.shade_static, o, d, hits, time)
 
     def shade_static(self, o: torch.Tensor, d: torch.Tensor, hits: Hits) -> torch.Tensor:
         """Colour of rays that hit terrain or objects (no time dependence)."""

@@ -9,12 +9,14 @@ from dataclasses import dataclass, field
 import torch
 
 from pano4d.progress import Task
-from pano4d.synth.landscape import CAMERA_HEIGHT, Landscape
+from pano4d.synth.landscape import Landscape
+from pano4d.synth.room import Room
 from pano4d.synth.views import SynthView, make_views, render_panorama
 from pano4d.synth.world import Hits, World
 
-# The scene kinds make_scene can build: a constructor (seed, frames, camera_height) each.
-SCENE_KINDS: dict[str, Callable[[int, int, float], World]] = {"landscape": Landscape}
+# The scene kinds make_scene can build: a constructor (seed, frames[, camera_height]) each,
+# whose camera_height defaults to the kind's own.
+SCENE_KINDS: dict[str, Callable[..., World]] = {"landscape": Landscape, "room": Room}
 
 
 class SynthFrames:
@@ -65,6 +67,7 @@ class SynthScene:
     frames: SynthFrames  # L frames (H, W, 3), frame 0 equals the panorama
     views: list[SynthView]
     labels: torch.Tensor  # (H, W) uint8: what each pixel hit (LABEL_SKY or the kind's labels)
+    kind: str  # its key in SCENE_KINDS
     world: World = field(repr=False)
 
     @property
@@ -80,14 +83,15 @@ def make_scene(
     *,
     views: int = 8,
     view_size: int = 256,
-    camera_height: float = CAMERA_HEIGHT,
+    camera_height: float | None = None,
     kind: str = "landscape",
     progress: Task | None = None,
 ) -> SynthScene:
     """Render the synthetic scene of ``seed``: panorama, depth, mask, frames and views.
 
     Deterministic: the same arguments give bit-identical tensors. The frames are rendered
-    lazily (see ``SynthFrames``). ``kind`` names the world in SCENE_KINDS. ``progress``
+    lazily (see ``SynthFrames``). ``kind`` names the world in SCENE_KINDS; ``camera_height``
+    (metres above the ground or floor) defaults to the kind's own. ``progress``
     advances one step per stage, saying what was done.
     """
     if views < 0 or view_size < 1:
@@ -95,7 +99,8 @@ def make_scene(
     report = (progress or Task()).advance
     if kind not in SCENE_KINDS:
         raise ValueError(f"unknown scene kind {kind!r}; known: {', '.join(SCENE_KINDS)}")
-    world = SCENE_KINDS[kind](seed, frames, camera_height)
+    build = SCENE_KINDS[kind]
+    world = build(seed, frames) if camera_height is None else build(seed, frames, camera_height)
     report(f"built the {kind}")
     panorama, depth, labels, hits, dirs = render_panorama(world, width, height)
     report("rendered the panorama")
@@ -104,4 +109,4 @@ def make_scene(
     animation = SynthFrames(world, panorama, moving, dirs[moving], hits.subset(moving))
     view_list = make_views(world, views, view_size)
     report("rendered the views")
-    return SynthScene(panorama, depth, mask, animation, view_list, labels, world)
+    return SynthScene(panorama, depth, mask, animation, view_list, labels, kind, world)

@@ -13,13 +13,31 @@ from dataclasses import dataclass
 import torch
 
 from pano4d.smoothstep import smoothstep
-from pano4d.synth.textures import TiledNoise, lerp, normalize, rgb, sample, wrap
+from pano4d.synth.textures import (
+    TiledNoise,
+    fft_noise,
+    lerp,
+    normalize,
+    periodic,
+    rgb,
+    sample,
+    wrap,
+)
 
 # The cloud field repeats CLOUD_REPEATS times around the sky; over L frames it drifts by one
 # repeat, so the drift loops.
 CLOUD_REPEATS = 6
 CLOUD_TEXELS = 384  # texels per repeat along the azimuth
 CLOUD_LOG_RHO = (-3.0, 5.5)  # log of the cloud-plane radius (cot of elevation) covered
+
+
+def cloud_texture(gen: torch.Generator) -> torch.Tensor:
+    """The periodic cloud texture a ``Sky`` drifts: (1, R + 1, CLOUD_TEXELS + 1), square
+    texels over the log-polar cloud deck."""
+    rows = round(
+        (CLOUD_LOG_RHO[1] - CLOUD_LOG_RHO[0]) / (2 * math.pi / CLOUD_REPEATS) * CLOUD_TEXELS
+    )
+    return periodic(fft_noise(gen, rows, CLOUD_TEXELS, 1.75, largest=CLOUD_TEXELS / 2)[None])
 
 
 @dataclass

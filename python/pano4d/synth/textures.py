@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from pano4d.smoothstep import smoothstep
+
 
 def rgb(*values: float) -> torch.Tensor:
     return torch.tensor(values, dtype=torch.float32)
@@ -73,3 +75,37 @@ class TiledNoise:
     def at(self, x: torch.Tensor, y: torch.Tensor, period: float, channel: int) -> torch.Tensor:
         tex = self.texture[channel : channel + 1]
         return sample(tex, wrap(x / period), wrap(y / period))[:, 0]
+
+
+def pulse_coverage(
+    x: torch.Tensor, period: float, width: float, footprint: torch.Tensor
+) -> torch.Tensor:
+    """A pulse train (1 on [kP, kP + width), 0 elsewhere, P = ``period``) box-filtered over
+    ``footprint`` (N,) around each position x (N,): the fraction of the footprint the pulses
+    cover. Exact for a box filter, so thin lines fade to their mean grey instead of aliasing."""
+    f = footprint.clamp_min(1e-5)
+
+    def integral(t: torch.Tensor) -> torch.Tensor:  # ∫_0^t pulses
+        cells = torch.floor(t / period)
+        return cells * width + (t - cells * period).clamp(0.0, width)
+
+    return ((integral(x + f / 2) - integral(x - f / 2)) / f).clamp(0.0, 1.0)
+
+
+def detail_fade(footprint: torch.Tensor, wavelength: float) -> torch.Tensor:
+    """1 where a pattern of ``wavelength`` spans at least 4 footprints, 0 at 2 or fewer: how
+    much of it to keep before it would alias."""
+    return 1.0 - smoothstep(0.25, 0.5, footprint / wavelength)
+
+
+def cell_blend(
+    x: torch.Tensor, period: float, footprint: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Cells of ``period`` along x, box-filtered over ``footprint``: the cells at both ends of
+    the footprint (lower, upper) and the upper one's share. A per-cell value v then filters
+    to lerp(v[lower], v[upper], share): no hard edge finer than a pixel between cells."""
+    f = footprint.clamp_min(1e-5)
+    lower = torch.floor((x - f / 2) / period)
+    upper = torch.floor((x + f / 2) / period)
+    share = ((x + f / 2 - upper * period) / f).clamp(0.0, 1.0)
+    return lower, upper, share

@@ -65,10 +65,11 @@ def render_panorama(
 
 
 def median_scene_depth(world: World) -> float:
-    """Median ray length of everything but the sky, measured on a small fixed panorama so the
-    views of a seed do not depend on the panorama's resolution."""
-    _, depth, labels, _, _ = render_panorama(world, *DEPTH_PROBE_SIZE)
-    return float(depth[labels != LABEL_SKY].median())
+    """Median ray length of everything but the sky, cast (not shaded) on a small fixed
+    panorama so the views of a seed do not depend on the panorama's resolution."""
+    width, height = DEPTH_PROBE_SIZE
+    hits = world.cast(torch.zeros(3), equirect_directions(width, height).view(-1, 3))
+    return float(hits.depth[hits.label != LABEL_SKY].median())
 
 
 def make_views(world: World, count: int, size: int) -> list[SynthView]:

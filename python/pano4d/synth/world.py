@@ -2,14 +2,16 @@
 
 ``make_scene`` renders every kind the same way (``views``: the panorama from the origin and
 displaced ground-truth views; ``scene.SynthFrames``: the animation, shading again only the
-pixels that move) and ``write_scene`` writes the same files for each. ``Landscape`` (a
-meadow, a lake, hills, objects and clouds) is the first kind; another is a class with the
-``World`` interface, registered in ``pano4d.synth.scene.SCENE_KINDS``.
+pixels that move) and ``write_scene`` writes the same files for each. The kinds:
+``Landscape`` (a meadow, a lake, hills, objects and clouds; ``landscape``) and ``Room`` (a
+furnished room with a window onto a far exterior and a playing screen; ``room``); another is
+a class with the ``World`` interface, registered in ``pano4d.synth.scene.SCENE_KINDS``.
 
 Shared conventions: the world frame of docs/design.md (+z up, the panorama's camera at the
-origin); label 0 (``LABEL_SKY``) is a sky sphere of radius ``SKY_DEPTH`` around the origin,
-so every ray has a finite depth; what moves is periodic in the time index with period
-``frames``, so the animation loops.
+origin, the ground or floor at z = −camera_height); label 0 (``LABEL_SKY``) is a sky sphere
+of radius ``SKY_DEPTH`` around the origin, so every ray has a finite depth; geometry never
+moves (depth is the same in every frame), and what changes colour is periodic in the time
+index with period ``frames``, so the animation loops.
 """
 
 from __future__ import annotations
@@ -71,8 +73,33 @@ class World(Protocol):
         """Which labels change over time (bool, the shape of ``label``)."""
         ...
 
+    def surface_residual(self, points: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+        """Signed distance-like residual (N,) of world points (N, 3) to the surface named by
+        ``label`` (N,): zero, to float precision, for a point on it (the exact-depth check)."""
+        ...
+
     def motion_hint(self) -> MotionHint: ...
 
     def metadata(self) -> dict[str, Any]:
         """What gt/views.json records about the world (JSON types)."""
         ...
+
+
+def shade_split(
+    world: World,
+    static: Callable[[torch.Tensor, torch.Tensor, Hits], torch.Tensor],
+    o: torch.Tensor,
+    d: torch.Tensor,
+    hits: Hits,
+    time: int,
+) -> torch.Tensor:
+    """``World.shade`` of every kind: rays that hit what does not move coloured by
+    ``static(o, d, hits)``, the others by ``world.moving_shader`` at ``time``."""
+    o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
+    rgb = torch.empty(d.shape[0], 3)
+    moving = world.moves(hits.label)
+    still = (~moving).nonzero()[:, 0]
+    rgb[still] = static(o, d[still], hits.subset(still))
+    dyn = moving.nonzero()[:, 0]
+    rgb[dyn] = world.moving_shader(o, d[dyn], hits.subset(dyn))(time)
+    return rgb
