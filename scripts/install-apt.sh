@@ -2,8 +2,9 @@
 # Install the Debian packages pano4d needs, only when one is missing (so a second run is instant).
 #   mesa-vulkan-drivers + libvulkan1: the Vulkan loader and lavapipe, wgpu's CPU adapter
 #   ffmpeg: MP4 previews
+#   strace: tests/test_resume.py watches every file a run opens for writing
 set -euo pipefail
-packages=(mesa-vulkan-drivers libvulkan1 ffmpeg)
+packages=(mesa-vulkan-drivers libvulkan1 ffmpeg strace)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

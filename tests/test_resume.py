@@ -10,6 +10,7 @@ deterministic).
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -113,3 +114,36 @@ def test_a_config_change_discards_exactly_the_stages_it_affects(reference: Path)
     assert resumed_at["align"] == {"frame": frames}  # kept
     assert resumed_at["static"] == {"step": 0}  # started over
     assert resumed_at["dynamic"] == {"t": 0, "step": 0}  # started over
+
+
+# An open(2) that can write: (path, flags) of openat / open / creat lines in strace's log.
+OPEN_CALL = re.compile(
+    r'\b(?:openat|open|creat)\((?:[^,"]+, )?"((?:[^"\\]|\\.)*)"(?:, ([A-Z0-9_|]+))?'
+)
+
+
+def test_no_file_is_ever_written_under_its_final_name(reference: Path) -> None:
+    """Whatever writes it (Python, torch, OpenImageIO, ffmpeg, the Rust extension), a file of
+    the output folder is only ever opened for writing under a temporary name (starting with
+    '.') and renamed into place when whole: what a kill at any instant can leave behind.
+    strace sees every process and language alike."""
+    if shutil.which("strace") is None:
+        pytest.skip("strace is not installed (scripts/install-apt.sh installs it)")
+    folder = reference.with_name("traced")
+    shutil.copytree(reference.with_name("pristine"), folder)
+    log = folder / "strace.log"
+    trace = ("strace", "-f", "-qq", "-e", "trace=%file", "-o", str(log))
+    done = pano4d("train", folder / "scene.yaml", "--checkpoint-every", "4", prefix=trace)
+    assert done.returncode == 0, done.stderr
+    output = (folder / "output").resolve()
+    written = []
+    for match in OPEN_CALL.finditer(log.read_text()):
+        path, flags = Path(match.group(1)), match.group(2) or "O_CREAT"  # creat() has no flags
+        if not {"O_WRONLY", "O_RDWR", "O_CREAT"} & set(flags.split("|")):
+            continue
+        path = path if path.is_absolute() else Path.cwd() / path
+        if path.resolve().is_relative_to(output):
+            written.append(path)
+    assert len(written) > 20, "the trace saw the run's writes"  # frames, checkpoints, scene
+    final = sorted({str(p.relative_to(output)) for p in written if not p.name.startswith(".")})
+    assert final == [], final
