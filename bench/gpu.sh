@@ -207,14 +207,6 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 # --- the parts ------------------------------------------------------------------------------
-if has_part train_step && [ -f bench/train_step.py ]; then
-    train_step_args=()
-    if [ -n "${TRAIN_STEP_ARGS+set}" ]; then
-        read -ra train_step_args <<<"$TRAIN_STEP_ARGS"
-    elif [ $smoke -eq 1 ] && "$PY" bench/train_step.py --help 2>/dev/null | grep -q -- --quick; then
-        train_step_args=(--quick)
-    fi
-fi
 panorama="$LAKE"
 [ -f "$LAKE" ] || panorama=synthetic
 if [ $smoke -eq 1 ]; then
@@ -223,6 +215,7 @@ if [ $smoke -eq 1 ]; then
                 --json "$out/viewer.json")
     animate_args="${ANIMATE_ARGS:---frames 2 --steps 1 --worth 1 --decode-widths 512}"
     quality_args="${QUALITY_ARGS:---presets draft --width 512 --frames 2}"
+    train_step_args="${TRAIN_STEP_ARGS:---sizes draft --steps 1 --width 512}"
 else
     raster_cmd=("$PY" bench/raster.py --repeats 5)
     viewer_cmd=("$VIEWER_BENCH" --size 1920x1080 --sh-degree 3 --counts 100000,1000000,3000000
@@ -230,13 +223,16 @@ else
     # Per-step figures need few steps; all 25 take longer than one 10-minute call.
     animate_args="${ANIMATE_ARGS:---full --steps 5 --weights $SVD_WEIGHTS}"
     quality_args="${QUALITY_ARGS:---presets draft balanced --frames 2}"
+    # #12's GPU targets: the resident step against the old path and gsplat + torch Adam.
+    train_step_args="${TRAIN_STEP_ARGS:---sizes draft balanced max --steps 5 --gsplat}"
 fi
 read -ra animate_extra <<<"$animate_args"
 read -ra quality_extra <<<"$quality_args"
+read -ra train_step_extra <<<"$train_step_args"
 animate_cmd=("$PY" bench/animate.py "${animate_extra[@]}" --panorama "$panorama"
              --json "$out/animate.json")
 quality_cmd=("$PY" bench/quality.py "${quality_extra[@]}" --json "$out/quality.json")
-train_step_cmd=("$PY" bench/train_step.py "${train_step_args[@]+"${train_step_args[@]}"}")
+train_step_cmd=("$PY" bench/train_step.py "${train_step_extra[@]}" --json "$out/train_step.json")
 
 command_of() {
     local name="${1}_cmd[@]"
@@ -248,11 +244,7 @@ if [ $dry_run -eq 1 ]; then
     [ "$panorama" = synthetic ] && has_part animate &&
         echo "note: $LAKE is not here; animate uses a synthetic panorama"
     for part in "${parts[@]}"; do
-        if [ "$part" = train_step ] && [ ! -f bench/train_step.py ]; then
-            echo "$part: skipped (bench/train_step.py does not exist yet)"
-        else
-            echo "$part: $(command_of "$part")"
-        fi
+        echo "$part: $(command_of "$part")"
     done
     exit 0
 fi
@@ -263,12 +255,6 @@ touch "$marker"
 declare -A status seconds
 failed=()
 for part in "${parts[@]}"; do
-    if [ "$part" = train_step ] && [ ! -f bench/train_step.py ]; then
-        echo "== $part: skipped (bench/train_step.py does not exist yet)"
-        status[$part]=skipped
-        seconds[$part]=0
-        continue
-    fi
     name="${part}_cmd[@]"
     echo "== $part: $(command_of "$part")"
     start=$(date +%s)
