@@ -22,6 +22,7 @@ from pano4d.lift.optimize import (
     pearson_loss,
     sem_alpha,
 )
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.regions import moving_in_video
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
@@ -146,18 +147,7 @@ def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> Non
 
 
 def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    import transformers
-    from transformers import Dinov2Config, Dinov2Model
-
-    from pano4d.config import FeaturesConfig
-    from pano4d.lift.features import make_feature_model
-
-    transformers.logging.set_verbosity_error()
-    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
-                          intermediate_size=32, patch_size=6, image_size=12)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(tmp_path / "dino")
-    features = make_feature_model(FeaturesConfig(backend="dinov2", weights=tmp_path / "dino"))
+    features = random_feature_model(tmp_path, patch_size=6, image_size=12)
     g, views = _problem()
     knobs = Knobs(iterations=4, lambda_sem=1.0, sem_scale=4.0)
     trainer = GaussianTrainer(g, views, knobs, _render, features=features, seed=0)

@@ -28,6 +28,7 @@ from pano4d.lift.optimize import (
     split_and_prune,
     ssim_loss,
 )
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ADAM_BETAS, GROUPS, ResidentTrainer, pack, unpack
 from pano4d.render import MIN_ALPHA_FOR_DEPTH, RenderOutput, _core, render
 from pano4d.resample import equirect_to_perspective
@@ -422,27 +423,12 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_clas
     assert len(trainer.result()) <= knobs.max_gaussians and math.isfinite(trainer.last_loss)
 
 
-def _tiny_dinov2(folder: Any) -> Any:
-    import transformers
-    from transformers import Dinov2Config, Dinov2Model
-
-    from pano4d.config import FeaturesConfig
-    from pano4d.lift.features import make_feature_model
-
-    transformers.logging.set_verbosity_error()
-    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
-                          intermediate_size=32, patch_size=6, image_size=24)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(folder / "dino")
-    return make_feature_model(FeaturesConfig(backend="dinov2", weights=folder / "dino"))
-
-
 def test_semantic_loss_on_the_resident_path_follows_the_torch_trainer(tmp_path: Any) -> None:
     """With a (tiny, random) DINOv2, L_sem from 54 % of the iterations: the resident trainer
     reads both renders back, runs the feature model in torch and back-propagates the moved
     render's pixel gradient on the device. Its result follows the torch trainer's as closely
     as without L_sem, and differs from a run without it by far more than that."""
-    features = _tiny_dinov2(tmp_path)
+    features = random_feature_model(tmp_path, patch_size=6, image_size=24)
     g, views = _problem()
     knobs = Knobs(iterations=8, lambda_sem=1.0, sem_scale=4.0)
     expected = GaussianTrainer(g, views, knobs, _render, features=features, seed=1).run()
