@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from sphere_problem import sphere_problem
 
 from pano4d.gaussians import SH_C0, Gaussians
 from pano4d.lift.initial import (
@@ -24,7 +25,6 @@ from pano4d.lift.optimize import (
 )
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.regions import moving_in_video
-from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -96,17 +96,7 @@ def test_losses_and_schedule() -> None:
 
 
 def _problem(sh_degree: int = 0) -> tuple[Gaussians, TrainViews]:
-    cams = view_layout(4, 90.0, 12)
-    ico = init_sphere(96, 3)
-    depth = torch.full((24, 48), 4.0)
-    v = torch.linspace(0, 1, 24)[:, None, None]
-    u = torch.linspace(0, 1, 48)[None, :, None]
-    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
-    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)  # dim start
-    targets = torch.stack([equirect_to_perspective(frame.permute(2, 0, 1), c).permute(1, 2, 0)
-                           for c in cams])  # fmt: skip
-    views = TrainViews(cams, targets, torch.ones(4, 12, 12), torch.full((4, 12, 12), 4.0))
-    return g, views
+    return sphere_problem(12, sh_degree)
 
 
 def test_optimiser_lowers_the_loss_and_resumes_bit_for_bit() -> None:

@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from sphere_problem import sphere_problem
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import (
     ADAM_EPS,
     LEARNING_RATES,
@@ -31,8 +31,6 @@ from pano4d.lift.optimize import (
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ADAM_BETAS, GROUPS, ResidentTrainer, pack, unpack
 from pano4d.render import MIN_ALPHA_FOR_DEPTH, RenderOutput, _core, render
-from pano4d.resample import equirect_to_perspective
-from pano4d.sphere import view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -262,13 +260,7 @@ def _problem(sh_degree: int = 1) -> tuple[Gaussians, TrainViews]:
     orientations and anisotropic scales. (The initial facing discs have a symmetry, the
     rotation about their normal, whose gradient is pure rounding noise; Adam turns noise
     into ±lr steps in either trainer, so their trajectories are not comparable there.)"""
-    cams = view_layout(4, 90.0, 24)
-    ico = init_sphere(96, 3)
-    depth = torch.full((24, 48), 4.0)
-    v = torch.linspace(0, 1, 24)[:, None, None]
-    u = torch.linspace(0, 1, 48)[None, :, None]
-    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
-    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)
+    g, views = sphere_problem(24, sh_degree)
     gen = torch.Generator().manual_seed(5)
     g = Gaussians(
         g.means,
@@ -277,12 +269,8 @@ def _problem(sh_degree: int = 1) -> tuple[Gaussians, TrainViews]:
         g.opacity_logits,
         g.sh + 0.1 * torch.randn(g.sh.shape, generator=gen),
     )
-    image = frame.permute(2, 0, 1)
-    targets = torch.stack([equirect_to_perspective(image, c).permute(1, 2, 0) for c in cams])
-    weights = torch.ones(4, 24, 24)
-    weights[:, :6] = 0.0  # a masked band, as the static stage masks the moving region
-    views = TrainViews(cams, targets, weights, torch.full((4, 24, 24), 4.0))
-    views.previous = (targets * 0.9).clamp(0, 1)
+    views.weights[:, :6] = 0.0  # a masked band, as the static stage masks the moving region
+    views.previous = (views.targets * 0.9).clamp(0, 1)
     return g, views
 
 
