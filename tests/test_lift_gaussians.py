@@ -148,3 +148,24 @@ def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path
     assert math.isfinite(with_sem) and with_sem >= plain
     trainer.run()
     assert trainer.step == 4
+
+
+def test_the_initial_spacing_counts_working_pixels_whatever_the_input_width(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The same preset on a 128- and a 512-wide panorama works at the same resolution (its
+    views' pixel size), so it starts from the same Gaussians: ``init_stride`` counts pixels of
+    the working panorama, not of the input (which gave 16× the Gaussians for 4× the width)."""
+    from pano4d import synth
+    from pano4d.config import load_config
+    from pano4d.lift.pipeline import initial_sets, prepare
+
+    counts = {}
+    for width in (128, 512):
+        root = tmp_path / str(width)
+        synth.write_scene(root, synth.make_scene(0, width, width // 2, 2, views=1, view_size=8))
+        cfg = load_config(root / "scene.yaml")
+        cfg = cfg.model_copy(update={"overrides": {"view_size": 16, "init_stride": 2}})
+        inputs = prepare(cfg, root / "gt" / "frames", "torch", "torch")
+        assert inputs.frames.shape[2] == 72  # 16 px over 80°
+        sets = initial_sets(inputs, torch.full(inputs.moving.shape, 5.0))
+        counts[width] = sets.points
+    assert counts[128] == counts[512] == len(init_sphere(72, 2))
