@@ -60,6 +60,7 @@ from pano4d.config import PRESETS
 from pano4d.gaussians import Gaussians
 from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ResidentTrainer
 from pano4d.render import RenderOutput, _core, adapter_info, render
 from pano4d.resample import equirect_to_perspective
@@ -152,23 +153,6 @@ def resident_row(g: Gaussians, views: TrainViews, knobs: Knobs, steps: int) -> d
     return {"seconds": seconds, "bytes": moved / (steps + 1)}
 
 
-def tiny_dinov2(folder: Path) -> Any:
-    """A one-layer random DINOv2 (patch 14) through pano4d's feature backend."""
-    import transformers
-    from transformers import Dinov2Config, Dinov2Model
-
-    from pano4d.config import FeaturesConfig
-    from pano4d.lift.features import make_feature_model
-
-    transformers.logging.set_verbosity_error()
-    transformers.logging.disable_progress_bar()
-    config = Dinov2Config(hidden_size=32, num_hidden_layers=1, num_attention_heads=2,
-                          intermediate_size=64, patch_size=14, image_size=518)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(folder / "dino")
-    return make_feature_model(FeaturesConfig(backend="dinov2", weights=folder / "dino"))
-
-
 def semantic_row(
     g: Gaussians, views: TrainViews, knobs: Knobs, steps: int, features: Any
 ) -> dict[str, Any]:
@@ -244,7 +228,8 @@ def main() -> None:
     print(f"synthetic {args.width}x{args.width // 2} panorama: "
           f"{time.perf_counter() - start:.1f} s", flush=True)  # fmt: skip
     with tempfile.TemporaryDirectory() as folder:
-        features = tiny_dinov2(Path(folder))
+        features = random_feature_model(Path(folder), patch_size=14, image_size=518,
+                                        hidden_size=32)  # fmt: skip
     header = (f"{'size':>9} {'view':>5} {'Gaussians':>10} {'SH':>3} {'resident s':>11} "
               f"{'today s':>8} {'speed-up':>9} {'resident B':>11} {'today B':>12} "
               f"{'L_sem s':>8} {'L_sem B':>11} {'gsplat s':>9}")  # fmt: skip

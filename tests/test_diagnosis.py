@@ -96,7 +96,7 @@ def test_the_densify_log_adds_up(tmp_path: Path) -> None:
 # --- what a training run writes -----------------------------------------------------------------
 DENSIFYING = {
     "view_size": 16,
-    "init_stride": 4,
+    "init_stride": 2,
     "align_iterations": 20,
     "gaussian_iterations": 40,  # densify_every 10: densify-and-prune after steps 10 and 20
     "max_gaussians": 5000,

@@ -22,6 +22,7 @@ from pano4d.lift.depth import (
     sample_equirect_depth,
 )
 from pano4d.lift.features import FeatureError, make_feature_model
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.sphere import equirect_directions, view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -150,15 +151,7 @@ def test_dpt_backend_refuses_a_folder_without_a_model(tmp_path: Path) -> None:
 
 
 def test_dinov2_features_load_by_path_and_pass_gradients_to_the_image(tmp_path: Path) -> None:
-    _quiet_transformers()
-    from transformers import Dinov2Config, Dinov2Model
-
-    config = Dinov2Config(hidden_size=16, num_hidden_layers=2, num_attention_heads=2,
-                          intermediate_size=32, patch_size=14, image_size=28)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(tmp_path / "dino")
-    model = make_feature_model(FeaturesConfig(backend="dinov2", weights=tmp_path / "dino"))
-    assert model is not None
+    model = random_feature_model(tmp_path, patch_size=14, image_size=28, layers=2)
     image = torch.rand(24, 24, 3, requires_grad=True)
     cls = model.cls(image)
     assert cls.shape == (16,)

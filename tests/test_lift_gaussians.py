@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from sphere_problem import sphere_problem
 
 from pano4d.gaussians import SH_C0, Gaussians
 from pano4d.lift.initial import (
@@ -22,8 +23,8 @@ from pano4d.lift.optimize import (
     pearson_loss,
     sem_alpha,
 )
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.regions import moving_in_video
-from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import equirect_directions, view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -95,17 +96,7 @@ def test_losses_and_schedule() -> None:
 
 
 def _problem(sh_degree: int = 0) -> tuple[Gaussians, TrainViews]:
-    cams = view_layout(4, 90.0, 12)
-    ico = init_sphere(96, 3)
-    depth = torch.full((24, 48), 4.0)
-    v = torch.linspace(0, 1, 24)[:, None, None]
-    u = torch.linspace(0, 1, 48)[None, :, None]
-    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
-    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)  # dim start
-    targets = torch.stack([equirect_to_perspective(frame.permute(2, 0, 1), c).permute(1, 2, 0)
-                           for c in cams])  # fmt: skip
-    views = TrainViews(cams, targets, torch.ones(4, 12, 12), torch.full((4, 12, 12), 4.0))
-    return g, views
+    return sphere_problem(12, sh_degree)
 
 
 def test_optimiser_lowers_the_loss_and_resumes_bit_for_bit() -> None:
@@ -146,18 +137,7 @@ def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> Non
 
 
 def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    import transformers
-    from transformers import Dinov2Config, Dinov2Model
-
-    from pano4d.config import FeaturesConfig
-    from pano4d.lift.features import make_feature_model
-
-    transformers.logging.set_verbosity_error()
-    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
-                          intermediate_size=32, patch_size=6, image_size=12)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(tmp_path / "dino")
-    features = make_feature_model(FeaturesConfig(backend="dinov2", weights=tmp_path / "dino"))
+    features = random_feature_model(tmp_path, patch_size=6, image_size=12)
     g, views = _problem()
     knobs = Knobs(iterations=4, lambda_sem=1.0, sem_scale=4.0)
     trainer = GaussianTrainer(g, views, knobs, _render, features=features, seed=0)
@@ -168,3 +148,24 @@ def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path
     assert math.isfinite(with_sem) and with_sem >= plain
     trainer.run()
     assert trainer.step == 4
+
+
+def test_the_initial_spacing_counts_working_pixels_whatever_the_input_width(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The same preset on a 128- and a 512-wide panorama works at the same resolution (its
+    views' pixel size), so it starts from the same Gaussians: ``init_stride`` counts pixels of
+    the working panorama, not of the input (which gave 16× the Gaussians for 4× the width)."""
+    from pano4d import synth
+    from pano4d.config import load_config
+    from pano4d.lift.pipeline import initial_sets, prepare
+
+    counts = {}
+    for width in (128, 512):
+        root = tmp_path / str(width)
+        synth.write_scene(root, synth.make_scene(0, width, width // 2, 2, views=1, view_size=8))
+        cfg = load_config(root / "scene.yaml")
+        cfg = cfg.model_copy(update={"overrides": {"view_size": 16, "init_stride": 2}})
+        inputs = prepare(cfg, root / "gt" / "frames", "torch", "torch")
+        assert inputs.frames.shape[2] == 72  # 16 px over 80°
+        sets = initial_sets(inputs, torch.full(inputs.moving.shape, 5.0))
+        counts[width] = sets.points
+    assert counts[128] == counts[512] == len(init_sphere(72, 2))

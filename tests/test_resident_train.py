@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from sphere_problem import sphere_problem
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import (
     ADAM_EPS,
     LEARNING_RATES,
@@ -28,10 +28,9 @@ from pano4d.lift.optimize import (
     split_and_prune,
     ssim_loss,
 )
+from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ADAM_BETAS, GROUPS, ResidentTrainer, pack, unpack
 from pano4d.render import MIN_ALPHA_FOR_DEPTH, RenderOutput, _core, render
-from pano4d.resample import equirect_to_perspective
-from pano4d.sphere import view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -261,13 +260,7 @@ def _problem(sh_degree: int = 1) -> tuple[Gaussians, TrainViews]:
     orientations and anisotropic scales. (The initial facing discs have a symmetry, the
     rotation about their normal, whose gradient is pure rounding noise; Adam turns noise
     into ±lr steps in either trainer, so their trajectories are not comparable there.)"""
-    cams = view_layout(4, 90.0, 24)
-    ico = init_sphere(96, 3)
-    depth = torch.full((24, 48), 4.0)
-    v = torch.linspace(0, 1, 24)[:, None, None]
-    u = torch.linspace(0, 1, 48)[None, :, None]
-    frame = torch.cat([v.expand(24, 48, 1), u.expand(24, 48, 1), (1 - v).expand(24, 48, 1)], -1)
-    g = init_gaussians(ico.points, ico.spacing_rad, depth, frame * 0.2, sh_degree)
+    g, views = sphere_problem(24, sh_degree)
     gen = torch.Generator().manual_seed(5)
     g = Gaussians(
         g.means,
@@ -276,12 +269,8 @@ def _problem(sh_degree: int = 1) -> tuple[Gaussians, TrainViews]:
         g.opacity_logits,
         g.sh + 0.1 * torch.randn(g.sh.shape, generator=gen),
     )
-    image = frame.permute(2, 0, 1)
-    targets = torch.stack([equirect_to_perspective(image, c).permute(1, 2, 0) for c in cams])
-    weights = torch.ones(4, 24, 24)
-    weights[:, :6] = 0.0  # a masked band, as the static stage masks the moving region
-    views = TrainViews(cams, targets, weights, torch.full((4, 24, 24), 4.0))
-    views.previous = (targets * 0.9).clamp(0, 1)
+    views.weights[:, :6] = 0.0  # a masked band, as the static stage masks the moving region
+    views.previous = (views.targets * 0.9).clamp(0, 1)
     return g, views
 
 
@@ -422,27 +411,12 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_clas
     assert len(trainer.result()) <= knobs.max_gaussians and math.isfinite(trainer.last_loss)
 
 
-def _tiny_dinov2(folder: Any) -> Any:
-    import transformers
-    from transformers import Dinov2Config, Dinov2Model
-
-    from pano4d.config import FeaturesConfig
-    from pano4d.lift.features import make_feature_model
-
-    transformers.logging.set_verbosity_error()
-    config = Dinov2Config(hidden_size=16, num_hidden_layers=1, num_attention_heads=2,
-                          intermediate_size=32, patch_size=6, image_size=24)  # fmt: skip
-    torch.manual_seed(0)
-    Dinov2Model(config).save_pretrained(folder / "dino")
-    return make_feature_model(FeaturesConfig(backend="dinov2", weights=folder / "dino"))
-
-
 def test_semantic_loss_on_the_resident_path_follows_the_torch_trainer(tmp_path: Any) -> None:
     """With a (tiny, random) DINOv2, L_sem from 54 % of the iterations: the resident trainer
     reads both renders back, runs the feature model in torch and back-propagates the moved
     render's pixel gradient on the device. Its result follows the torch trainer's as closely
     as without L_sem, and differs from a run without it by far more than that."""
-    features = _tiny_dinov2(tmp_path)
+    features = random_feature_model(tmp_path, patch_size=6, image_size=24)
     g, views = _problem()
     knobs = Knobs(iterations=8, lambda_sem=1.0, sem_scale=4.0)
     expected = GaussianTrainer(g, views, knobs, _render, features=features, seed=1).run()

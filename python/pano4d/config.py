@@ -39,7 +39,7 @@ TEMPLATE_PATH = Path(__file__).parent / "templates" / "scene.yaml"
 PRESETS: dict[str, dict[str, int | float | bool]] = {
     "draft": {
         "view_size": 128,
-        "init_stride": 8,
+        "init_stride": 5,
         "align_iterations": 50,
         "gaussian_iterations": 100,
         "max_gaussians": 100_000,
@@ -95,7 +95,7 @@ class PresetKnobs(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
     view_size: int  # pixels per side of each perspective view
-    init_stride: int  # equirect pixels between initial Gaussians
+    init_stride: int  # working-panorama pixels between initial Gaussians
     align_iterations: int  # depth alignment (per-view scale + shift) steps
     gaussian_iterations: int  # optimisation steps per timestamp
     max_gaussians: int  # the budget: static plus one timestamp's dynamic set

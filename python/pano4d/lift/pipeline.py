@@ -97,7 +97,6 @@ class LiftInputs:
     cameras: list[Camera]  # the view layout, views of knobs.view_size pixels
     frames: torch.Tensor  # (L, H, W, 3) at the working resolution
     moving: torch.Tensor  # (H, W) bool, the grown moving region at the working resolution
-    full_width: int  # the input panorama's width
     render_backend: str  # "wgpu" | "torch"
     trainer: str  # a key of TRAINERS
 
@@ -174,7 +173,6 @@ def prepare(
         cameras=view_layout(cfg.lift.views, cfg.lift.fov_deg, knobs.view_size),
         frames=frames,
         moving=moving_region(cfg, frames, (full_w, full_h)),
-        full_width=full_w,
         render_backend=render_backend,
         trainer=trainer,
     )
@@ -265,11 +263,14 @@ def initial_sets(inputs: LiftInputs, depth0: torch.Tensor) -> InitialSets:
     """One Gaussian per icosphere sample at frame 0's aligned depth ``depth0`` (H, W); the
     samples in the moving region form the dynamic set, the rest the static set."""
     knobs = inputs.knobs
+    # The spacing counts working pixels, so a preset starts from as many Gaussians per pixel
+    # of what it trains on whatever the input's width.
+    width = inputs.frames.shape[2]
     stride = knobs.init_stride
-    ico = init_sphere(inputs.full_width, stride)
+    ico = init_sphere(width, stride)
     while len(ico) > knobs.max_gaussians:  # keep the initial set within budget
         stride += 1
-        ico = init_sphere(inputs.full_width, stride)
+        ico = init_sphere(width, stride)
     points = ico.points
     dynamic = points_in_mask(points, inputs.moving)
     frame0 = inputs.frames[0].to(inputs.device)

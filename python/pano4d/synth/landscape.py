@@ -32,7 +32,14 @@ from pano4d.synth.shading import (
 )
 from pano4d.synth.terrain import FLAT_RADIUS, Terrain
 from pano4d.synth.textures import TiledNoise, fft_noise, normalize, periodic, rgb
-from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint, shade_split
+from pano4d.synth.world import (
+    LABEL_SKY,
+    SKY_DEPTH,
+    Hits,
+    MotionHint,
+    shade_split,
+    world_metadata,
+)
 
 CAMERA_HEIGHT = 2.0
 
@@ -149,21 +156,17 @@ class Landscape:
         return MotionHint(0.0, self.cloud_speed_deg, "cloud drift")
 
     def metadata(self) -> dict[str, Any]:
-        return {
-            "seed": self.seed,
-            "frames": self.frames,
-            "camera_height": self.camera_height,
-            "sky_depth": SKY_DEPTH,
-            "sun_direction": self.sun.tolist(),
-            "lake": {
+        return world_metadata(
+            self,
+            lake={
                 "centre": list(self.lake_centre),
                 "axes": list(self.lake_axes),
                 "angle_deg": math.degrees(self.lake_angle),
             },
-            "cloud_drift": {"direction_deg": 0.0, "speed_deg_per_frame": self.cloud_speed_deg},
-            "wave_direction_deg": math.degrees(self.wave_direction),
-            "objects": [o.to_dict() for o in self.objects],
-        }
+            cloud_drift={"direction_deg": 0.0, "speed_deg_per_frame": self.cloud_speed_deg},
+            wave_direction_deg=math.degrees(self.wave_direction),
+            objects=[o.to_dict() for o in self.objects],
+        )
 
     # --- surfaces ------------------------------------------------------------------------
     def lake_level(self, x: torch.Tensor, y: torch.Tensor, margin: float = 0.0) -> torch.Tensor:

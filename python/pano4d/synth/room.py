@@ -41,7 +41,14 @@ from pano4d.synth.room_geometry import (
 from pano4d.synth.room_shading import RoomLook
 from pano4d.synth.shading import CLOUD_REPEATS, Sky, cloud_texture
 from pano4d.synth.textures import TiledNoise, fft_noise, normalize, periodic
-from pano4d.synth.world import LABEL_SKY, SKY_DEPTH, Hits, MotionHint, shade_split
+from pano4d.synth.world import (
+    LABEL_SKY,
+    SKY_DEPTH,
+    Hits,
+    MotionHint,
+    shade_split,
+    world_metadata,
+)
 
 CAMERA_HEIGHT = 1.5
 GROUND_RADIUS = 900.0  # the exterior plain ends here (the sky sphere is at SKY_DEPTH)
@@ -287,18 +294,14 @@ class Room:
         return MotionHint(0.0, 360.0 / CLOUD_REPEATS / self.frames, "cloud drift and screen")
 
     def metadata(self) -> dict[str, Any]:
-        return {
-            "seed": self.seed,
-            "frames": self.frames,
-            "camera_height": self.camera_height,
-            "sky_depth": SKY_DEPTH,
-            "sun_direction": self.sun.tolist(),
-            "room": {"lo": list(self.box.lo), "hi": list(self.box.hi), "yaw_deg": self.box.yaw_deg},
-            "window": self.window.to_dict(),
-            "lights": [light.to_dict() for light in self.lights],
-            "furniture": [f.to_dict() for f in self.furniture],
-            "outside": [o.to_dict() for o in self.outside],
-        }
+        return world_metadata(
+            self,
+            room={"lo": list(self.box.lo), "hi": list(self.box.hi), "yaw_deg": self.box.yaw_deg},
+            window=self.window.to_dict(),
+            lights=[light.to_dict() for light in self.lights],
+            furniture=[f.to_dict() for f in self.furniture],
+            outside=[o.to_dict() for o in self.outside],
+        )
 
     # --- surfaces ----------------------------------------------------------------------------
     def surface_residual(self, points: torch.Tensor, label: torch.Tensor) -> torch.Tensor:

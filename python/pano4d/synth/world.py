@@ -53,6 +53,7 @@ class World(Protocol):
     seed: int
     frames: int
     camera_height: float  # the panorama's camera above the ground (depth.camera_height)
+    sun: torch.Tensor  # (3,) unit direction towards the sun
     moving_parts: str  # what the motion mask covers, for the comment in scene.yaml
 
     def cast(self, origin: Sequence[float] | torch.Tensor, dirs: torch.Tensor) -> Hits:
@@ -81,8 +82,20 @@ class World(Protocol):
     def motion_hint(self) -> MotionHint: ...
 
     def metadata(self) -> dict[str, Any]:
-        """What gt/views.json records about the world (JSON types)."""
+        """What gt/views.json records about the world (JSON types): ``world_metadata``."""
         ...
+
+
+def world_metadata(world: World, **own: Any) -> dict[str, Any]:
+    """A kind's ``metadata``: what every world records, then the kind's ``own`` keys."""
+    return {
+        "seed": world.seed,
+        "frames": world.frames,
+        "camera_height": world.camera_height,
+        "sky_depth": SKY_DEPTH,
+        "sun_direction": world.sun.tolist(),
+        **own,
+    }
 
 
 def shade_split(
