@@ -5,9 +5,9 @@
 mod frames;
 mod gradients;
 
-use super::kernels::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
+use super::sort::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
 use super::{
-    binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene,
+    binding_limit, target_texture, GpuContext, GpuScene, RasterError, RenderSettings, Renderer,
 };
 use crate::camera::Camera;
 use crate::gaussians::{GaussianSet, SceneInput};
@@ -140,7 +140,7 @@ fn scan_matches_a_cpu_prefix_sum() {
         let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
         let plan = plan_buffer(&ctx.device, "test scan plan");
         ctx.queue
-            .write_buffer(&plan, 0, bytemuck::cast_slice(&scan_plan(len as u32)));
+            .write_buffer(&plan, 0, bytemuck::bytes_of(&scan_plan(len as u32)));
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
         kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, &plan);
         ctx.queue.submit([encoder.finish()]);
@@ -327,7 +327,7 @@ fn resident_scene_draws_what_the_forward_renders() {
     let cam = camera(w, h);
     let target = target_texture(&device, w, h);
     let static_set = random_set(300, 1);
-    let mut resident = ResidentScene::new(&device, 500, 4).expect("resident scene");
+    let mut resident = GpuScene::new(&device, 500, 4).expect("resident scene");
     resident
         .write(&queue, 0, &SceneInput::from(&static_set))
         .expect("static set");
@@ -380,7 +380,7 @@ fn resident_scene_refuses_what_does_not_fit() {
     let renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let device = &renderer.context().device;
     let queue = &renderer.context().queue;
-    let mut resident = ResidentScene::new(device, 10, 4).expect("resident scene");
+    let mut resident = GpuScene::new(device, 10, 4).expect("resident scene");
     let eight = random_set(8, 5);
     assert!(resident.write(queue, 0, &SceneInput::from(&eight)).is_ok());
     // Past the capacity, or leaving a gap after what is written.
@@ -394,12 +394,12 @@ fn resident_scene_refuses_what_does_not_fit() {
         .write(queue, 8, &SceneInput::from(&dc_only))
         .is_err());
     assert_eq!(resident.len(), 8);
-    assert!(ResidentScene::new(device, 10, 5).is_err());
+    assert!(GpuScene::new(device, 10, 5).is_err());
     let allowed = binding_limit(device);
-    let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
+    let over = (allowed / GpuScene::bytes_for(1, 16)) as usize + 1;
     if over < (u32::MAX / 64) as usize {
         assert!(matches!(
-            ResidentScene::new(device, over, 16),
+            GpuScene::new(device, over, 16),
             Err(RasterError::TooLarge { .. })
         ));
     }
@@ -409,7 +409,7 @@ fn resident_scene_refuses_what_does_not_fit() {
 fn draw_checks_its_target() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let device = renderer.context().device.clone();
-    let resident = ResidentScene::new(&device, 4, 1).expect("resident scene");
+    let resident = GpuScene::new(&device, 4, 1).expect("resident scene");
     let wrong_size = target_texture(&device, 8, 9);
     let settings = RenderSettings::default();
     assert!(renderer
