@@ -26,7 +26,7 @@ struct RenderParams {
     // Room in the per-intersection buffers: a frame with more intersections draws nothing
     // and is recorded as overflowed (tiles.wgsl, `plan_intersections`).
     intersection_capacity: u32,
-    // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a resident scene
+    // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a GpuScene
     // keeps room for its largest dynamic set).
     gaussian_stride: u32,
     // Added to every log-scale as it is read (the viewer's splat-scale slider; 0 in training).

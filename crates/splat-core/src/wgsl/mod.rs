@@ -3,8 +3,8 @@
 //! - A kernel module is a list of [`WgslPart`]s, each a file beside the Rust that uses it,
 //!   joined in order by [`KernelModule::source`]: the shared parts first (each says which
 //!   parts it needs in its module and which of the kernel's globals it reads), the kernel's
-//!   own file last. (WGSL declarations may come in any order within a module.) The joined source names every part in a header, so a WGSL error points at
-//!   a file.
+//!   own file last (WGSL declarations may come in any order within a module). The joined
+//!   source names every part in a header, so a WGSL error points at a file.
 //! - A struct the host writes and a kernel reads is declared once in Rust with
 //!   [`gpu_struct!`], which records its field names and byte offsets; the test in
 //!   `tests.rs` parses every kernel module with naga and fails, naming struct and field,

@@ -79,7 +79,7 @@ fn bound_struct(module: &naga::Module, ty: naga::Handle<naga::Type>) -> Option<&
 }
 
 #[test]
-fn every_struct_shared_with_wgsl_has_the_same_fields_and_offsets_on_both_sides() {
+fn every_gpu_struct_matches_its_wgsl_declaration() {
     let rust = rust_structs();
     let mut found = Vec::new();
     let mut failures = Vec::new();
