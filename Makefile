@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMPS := $(VENV)/.stamps
-RUST_SOURCES := $(shell find crates shaders -type f 2>/dev/null) Cargo.toml Cargo.lock
+RUST_SOURCES := $(shell find crates -type f 2>/dev/null) Cargo.toml Cargo.lock
 
 export VIRTUAL_ENV := $(abspath $(VENV))
 export PATH := $(abspath $(VENV))/bin:$(PATH)

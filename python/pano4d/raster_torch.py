@@ -2,8 +2,8 @@
 
 Dense per pixel over the Gaussians that pass culling, in pixel chunks to bound memory,
 and differentiable by autograd; it exists to check ``backend="wgpu"`` (values and
-gradients), not for speed. The rules (docs/rasterizer.md) are shared with
-``shaders/*.wgsl``:
+gradients), not for speed. The rules (docs/rasterizer.md) are shared with the WGSL
+kernels (``crates/splat-core/src/raster/**/*.wgsl``):
 
 - EWA projection with the Jacobian's x/z, y/z clamped to 1.3·tan(half fov), a 0.3 px²
   low-pass, optional antialiasing (opacity · sqrt(det Σ / det(Σ + 0.3 I)));

@@ -16,6 +16,7 @@ pub mod ply;
 pub mod ply4d;
 pub mod raster;
 pub mod train;
+mod wgsl;
 
 #[cfg(feature = "python")]
 mod python;

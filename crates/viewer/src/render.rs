@@ -17,8 +17,8 @@ use image::RgbaImage;
 use splat_core::camera::Camera;
 use splat_core::gaussians::{sh_coeffs, GaussianSet, SceneInput};
 use splat_core::raster::{
-    target_texture, AdapterSummary, GpuContext, RasterError, RenderSettings, Renderer,
-    ResidentScene, StoredSet,
+    target_texture, AdapterSummary, GpuContext, GpuScene, RasterError, RenderSettings, Renderer,
+    StoredSet,
 };
 
 use crate::residency::{self, Playback};
@@ -67,7 +67,7 @@ pub struct FrameRenderer {
     adapter: AdapterSummary,
     /// The static set followed by the shown dynamic set; `None` until the first
     /// [`Self::show_time`] after [`Self::load_scene`].
-    resident: Option<ResidentScene>,
+    resident: Option<GpuScene>,
     /// Every timestamp's dynamic set when [`Self::load_scene_resident`] kept them; empty
     /// when they are streamed.
     stored: Vec<StoredSet>,
@@ -229,7 +229,7 @@ impl FrameRenderer {
     /// [`crate::stream::DynamicStream`]), the one drawn. Uploads the static set first, or
     /// again when a larger dynamic set needs more room.
     pub fn show(&mut self, scene: &Scene, t: usize, dynamic: &GaussianSet) -> Result<(), String> {
-        // ResidentScene::write checks the set's arrays and its SH degree against the scene.
+        // GpuScene::write checks the set's arrays and its SH degree against the scene.
         let degree = scene.static_set.sh_degree;
         self.shown_time = None;
         let needed = self.static_len + dynamic.len();
@@ -248,13 +248,13 @@ impl FrameRenderer {
         Ok(())
     }
 
-    fn allocate(&self, capacity: usize, sh_degree: u32) -> Result<ResidentScene, String> {
+    fn allocate(&self, capacity: usize, sh_degree: u32) -> Result<GpuScene, String> {
         let device = self.device();
         let k = sh_coeffs(sh_degree);
         let out_of_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let created = ResidentScene::new(device, capacity, k);
+        let created = GpuScene::new(device, capacity, k);
         let failed = pollster::block_on(out_of_memory.pop()).is_some();
-        let need = ResidentScene::bytes_for(capacity, k);
+        let need = GpuScene::bytes_for(capacity, k);
         let name = &self.adapter.name;
         match created {
             Err(RasterError::TooLarge { allowed, .. }) => {
@@ -319,7 +319,7 @@ impl FrameRenderer {
         let drawn = self.renderer.draw(resident, camera, &settings, target);
         if pollster::block_on(out_of_memory.pop()).is_some() {
             let k = resident.sh_coeffs();
-            let need = ResidentScene::bytes_for(resident.len(), k);
+            let need = GpuScene::bytes_for(resident.len(), k);
             return Err(too_large_message(
                 resident.len(),
                 need,
@@ -430,7 +430,7 @@ mod tests {
     fn all_dynamic_bytes(scene: &Scene) -> u64 {
         let k = sh_coeffs(scene.sh_degree);
         let counts = scene.dynamic_counts().unwrap();
-        counts.iter().map(|&n| ResidentScene::bytes_for(n, k)).sum()
+        counts.iter().map(|&n| GpuScene::bytes_for(n, k)).sum()
     }
 
     #[test]
@@ -533,7 +533,7 @@ mod tests {
     fn a_scene_over_the_device_limit_gets_the_draft_advice() {
         let renderer = FrameRenderer::headless().unwrap();
         let allowed = binding_limit(renderer.device());
-        let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
+        let over = (allowed / GpuScene::bytes_for(1, 16)) as usize + 1;
         if over >= (u32::MAX / 64) as usize {
             return; // an adapter whose limit is beyond what one scene may hold anyway
         }
@@ -546,7 +546,7 @@ mod tests {
 
     #[test]
     fn buffer_size_and_message() {
-        assert_eq!(ResidentScene::bytes_for(1_000_000, 16), 4 * 1_000_000 * 59);
+        assert_eq!(GpuScene::bytes_for(1_000_000, 16), 4 * 1_000_000 * 59);
         let msg = too_large_message(10, 300 << 20, Some(128 << 20), "lavapipe");
         assert!(msg.contains("300 MiB") && msg.contains("128 MiB") && msg.contains("draft preset"));
         assert!(too_large_message(10, 1, None, "gpu").contains("ran out of memory"));

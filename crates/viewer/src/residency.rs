@@ -11,7 +11,7 @@
 //! of it. The static set plus the largest dynamic set must fit one storage binding
 //! either way (`FrameRenderer` says so when they do not).
 
-use splat_core::raster::ResidentScene;
+use splat_core::raster::GpuScene;
 
 /// The budget for all stored dynamic sets together when `PANO4D_VIEW_BUDGET_MIB` is unset.
 pub const DEFAULT_BUDGET_BYTES: u64 = 1 << 30;
@@ -63,7 +63,7 @@ pub fn budget_from_env() -> Result<u64, String> {
 pub fn plan(counts: &[usize], sh_coeffs: usize, max_buffer_size: u64, budget: u64) -> Playback {
     let sizes: Vec<u64> = counts
         .iter()
-        .map(|&n| ResidentScene::bytes_for(n, sh_coeffs))
+        .map(|&n| GpuScene::bytes_for(n, sh_coeffs))
         .collect();
     let total: u64 = sizes.iter().sum();
     if let Some((t, &largest)) = sizes.iter().enumerate().max_by_key(|&(_, &bytes)| bytes) {
@@ -97,9 +97,9 @@ mod tests {
 
     #[test]
     fn sets_are_kept_when_each_fits_a_buffer_and_all_fit_the_budget() {
-        let one = ResidentScene::bytes_for(1_000, 16);
+        let one = GpuScene::bytes_for(1_000, 16);
         let counts = [600, 1_000, 900];
-        let all = ResidentScene::bytes_for(2_500, 16);
+        let all = GpuScene::bytes_for(2_500, 16);
         assert_eq!(
             plan(&counts, 16, one, all),
             Playback::Resident { bytes: all }

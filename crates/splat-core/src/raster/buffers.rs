@@ -1,16 +1,11 @@
 //! The renderer's reusable GPU buffers: each grows to the largest size a call has asked
 //! of it and is kept for the next call, so a training loop allocates nothing per step.
 
-use super::kernels::{plan_buffer, SortPlan};
-use super::renderer::RenderParams;
-use super::resident::binding_limit;
+use super::frame::STATUS_WORDS;
+use super::gpu_scene::binding_limit;
+use super::params::RenderParams;
+use super::sort::{plan_buffer, SortPlan};
 use super::RasterError;
-
-/// Words of the renderer's status buffer (tiles.wgsl, `plan_intersections`): frames that
-/// overflowed and the most intersections of any frame (both counting only the frames of
-/// `encode_frame`, and only growing), then the last frame's intersections and whether it
-/// was drawn (1) or overflowed (0).
-pub(crate) const STATUS_WORDS: usize = 4;
 
 /// Errors when `m` intersections of `bytes_each` exceed one storage binding.
 pub(super) fn ensure_intersections_fit(
@@ -63,6 +58,12 @@ impl GrowBuffer {
             }));
         }
         self.buffer.as_ref().expect("allocated above")
+    }
+
+    /// The buffer as the last [`Self::get`] left it: what a later stage of the frame reads
+    /// of an earlier one's.
+    pub(super) fn allocated(&self) -> wgpu::Buffer {
+        self.buffer.clone().expect("allocated before the frame")
     }
 }
 

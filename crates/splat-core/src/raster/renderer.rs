@@ -1,318 +1,55 @@
-//! The rasteriser's pipelines and its calls that wait for their results: `forward`,
-//! `draw` (the frame itself is encoded in frame.rs, the backward in backward.rs).
+//! The [`Renderer`]: every stage's kernels and the reusable buffers on one device, and all
+//! of its calls, in the order of a frame: construction, one frame encoded without waiting
+//! (stages 1–7, each dispatched by its stage module), its backward, the room for
+//! intersections, then the calls that wait for their results (`forward`, `backward`,
+//! `draw`).
 
-use super::buffers::{Buffers, STATUS_WORDS};
+use super::backward::{BackwardBuffers, BackwardKernels, Gradients, GAUSSIAN_GRAD_FLOATS};
+use super::blend::{BlendBuffers, BlendKernel};
+use super::buffers::{ensure_intersections_fit, Buffers};
 use super::context::GpuContext;
-use super::kernels::{compile, div_ceil, SortKernels, COMMON_WGSL, GAUSSIAN_WGSL};
-use super::resident::{check_scene_fits, ResidentScene, SceneBuffer};
+use super::frame::{Frame, IntersectionCheck, STATUS_WORDS};
+use super::gpu::{pop_error, read_mapped, submit_checked};
+use super::gpu_scene::{binding_limit, check_scene_fits, GpuScene, SceneBuffer};
+use super::params::{
+    validate_camera, validate_settings, Projected, RenderParams, RenderSettings, PIXEL_CHANNELS,
+};
+use super::present::{PresentKernel, TARGET_FORMAT};
+use super::project::{ProjectBuffers, ProjectKernel};
+use super::sort::{scan_plan, scratch_len, SortKernels};
+use super::tiles::{IntersectionBuffers, TileKernels};
 use super::RasterError;
 use crate::camera::Camera;
-use crate::gaussians::SceneInput;
-
-const PROJECT_WGSL: &str = include_str!("../../../../shaders/project.wgsl");
-const TILES_WGSL: &str = include_str!("../../../../shaders/tiles.wgsl");
-const RANGES_WGSL: &str = include_str!("../../../../shaders/ranges.wgsl");
-const RASTERIZE_WGSL: &str = include_str!("../../../../shaders/rasterize.wgsl");
-const RASTERIZE_BACKWARD_WGSL: &str = include_str!("../../../../shaders/rasterize_backward.wgsl");
-const PROJECT_BACKWARD_WGSL: &str = include_str!("../../../../shaders/project_backward.wgsl");
-const PRESENT_WGSL: &str = include_str!("../../../../shaders/present.wgsl");
-const GRAD_SUM_PLAIN_WGSL: &str = include_str!("../../../../shaders/grad_sum_plain.wgsl");
-const GRAD_SUM_SUBGROUP_WGSL: &str = include_str!("../../../../shaders/grad_sum_subgroup.wgsl");
-const GRAD_ADD_FLOAT_WGSL: &str = include_str!("../../../../shaders/grad_add_float.wgsl");
-const GRAD_ADD_CAS_WGSL: &str = include_str!("../../../../shaders/grad_add_cas.wgsl");
-
-pub const TILE_SIZE: u32 = 16;
-/// Floats per output pixel: r, g, b, alpha, accumulated depth.
-pub const PIXEL_CHANNELS: usize = 5;
-/// Floats per projected Gaussian (`Projected` in common.wgsl).
-pub(super) const PROJECTED_FLOATS: u64 = 12;
-/// The EWA Jacobian clamps x/z and y/z to this multiple of tan(half fov), as 3DGS does.
-const JACOBIAN_CLAMP: f64 = 1.3;
-
-/// Per-call options.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RenderSettings {
-    pub background: [f32; 3],
-    /// Multiply opacity by sqrt(det Σ2D / det(Σ2D + 0.3 I)) (Mip-Splatting's 2D filter).
-    pub antialiased: bool,
-    /// Multiplies every Gaussian's scale as it is drawn (the viewer's slider; 1 = as stored).
-    pub splat_scale: f32,
-}
-
-impl Default for RenderSettings {
-    fn default() -> Self {
-        Self {
-            background: [0.0; 3],
-            antialiased: false,
-            splat_scale: 1.0,
-        }
-    }
-}
-
-/// The texture format [`Renderer::draw`] writes: the forward's colours (display values,
-/// clamped to 0..1) as 8-bit RGBA, sampled as they are (egui takes texture samples as
-/// display values).
-pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-
-/// A texture [`Renderer::draw`] can write, egui can sample and [`Renderer::read_rgba8`]
-/// can copy out.
-pub fn target_texture(device: &wgpu::Device, width: u32, height: u32) -> wgpu::Texture {
-    device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("render target"),
-        size: wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: TARGET_FORMAT,
-        usage: wgpu::TextureUsages::STORAGE_BINDING
-            | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[],
-    })
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub(super) struct RenderParams {
-    rot_rows: [[f32; 4]; 3],
-    cam_pos: [f32; 4],
-    intrinsics: [f32; 4],
-    jacobian_limits: [f32; 4],
-    background: [f32; 4],
-    pub(super) width: u32,
-    pub(super) height: u32,
-    pub(super) tiles_x: u32,
-    pub(super) tiles_y: u32,
-    pub(super) num_gaussians: u32,
-    pub(super) sh_coeffs: u32,
-    antialiased: u32,
-    pub(super) intersection_capacity: u32,
-    gaussian_stride: u32,
-    log_scale_offset: f32,
-    pub(super) record_overflow: u32,
-    pad: u32,
-}
-
-pub(super) fn render_params(
-    camera: &Camera,
-    settings: &RenderSettings,
-    scene: &SceneBuffer,
-) -> RenderParams {
-    let r = camera.rotation;
-    let t = camera.translation;
-    let row = |i: usize| {
-        let v = r.row(i);
-        [v.x as f32, v.y as f32, v.z as f32, t[i] as f32]
-    };
-    let p = camera.position();
-    let tan_x = 0.5 * camera.width as f64 / camera.fx;
-    let tan_y = 0.5 * camera.height as f64 / camera.fy;
-    let bg = settings.background;
-    RenderParams {
-        rot_rows: [row(0), row(1), row(2)],
-        cam_pos: [p.x as f32, p.y as f32, p.z as f32, 0.0],
-        intrinsics: [
-            camera.fx as f32,
-            camera.fy as f32,
-            camera.cx as f32,
-            camera.cy as f32,
-        ],
-        jacobian_limits: [
-            (JACOBIAN_CLAMP * tan_x) as f32,
-            (JACOBIAN_CLAMP * tan_y) as f32,
-            0.0,
-            0.0,
-        ],
-        background: [bg[0], bg[1], bg[2], 0.0],
-        width: camera.width,
-        height: camera.height,
-        tiles_x: div_ceil(camera.width, TILE_SIZE),
-        tiles_y: div_ceil(camera.height, TILE_SIZE),
-        num_gaussians: scene.len,
-        sh_coeffs: scene.sh_coeffs,
-        antialiased: settings.antialiased as u32,
-        intersection_capacity: 0,
-        gaussian_stride: scene.stride,
-        log_scale_offset: settings.splat_scale.ln(),
-        record_overflow: 0,
-        pad: 0,
-    }
-}
-
-pub(super) fn validate_settings(settings: &RenderSettings) -> Result<(), RasterError> {
-    if !settings.background.iter().all(|v| v.is_finite()) {
-        return Err(RasterError::InvalidInput(
-            "background must be finite".into(),
-        ));
-    }
-    let scale = settings.splat_scale;
-    if !(scale.is_finite() && scale > 0.0) {
-        return Err(RasterError::InvalidInput(format!(
-            "splat scale must be finite and > 0, got {scale}"
-        )));
-    }
-    Ok(())
-}
-
-pub(super) fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
-    let finite = [camera.fx, camera.fy, camera.cx, camera.cy]
-        .iter()
-        .all(|v| v.is_finite())
-        && camera.rotation.is_finite()
-        && camera.translation.is_finite();
-    if !finite || camera.fx <= 0.0 || camera.fy <= 0.0 {
-        return Err(RasterError::InvalidInput(
-            "camera intrinsics and pose must be finite with fx, fy > 0".into(),
-        ));
-    }
-    if camera.width == 0 || camera.height == 0 || camera.width > 16384 || camera.height > 16384 {
-        return Err(RasterError::InvalidInput(format!(
-            "image size must be 1..=16384 per side, got {}x{}",
-            camera.width, camera.height
-        )));
-    }
-    Ok(())
-}
-
-/// One frame's results on the GPU, from [`Renderer::encode_frame`] (the forward's output
-/// is at [`Renderer::frame_pixels`], its status at [`Renderer::frame_status`]): what its
-/// backward needs. The buffers are the renderer's own: the next `encode_frame` on the same
-/// renderer overwrites them.
-pub struct Frame {
-    pub(super) scene: SceneBuffer,
-    pub(super) params: RenderParams,
-    pub(super) projected: wgpu::Buffer,
-    pub(super) tile_counts: wgpu::Buffer,
-    /// Gaussian ids of the intersections, sorted by tile (depth order within a tile).
-    pub(super) sorted_gaussians: wgpu::Buffer,
-    pub(super) ranges: wgpu::Buffer,
-    pub(super) pixel_state: wgpu::Buffer,
-    pub(super) pixels: wgpu::Buffer,
-}
-
-impl Frame {
-    /// (width, height) in pixels.
-    pub fn size(&self) -> (u32, u32) {
-        (self.params.width, self.params.height)
-    }
-
-    pub fn num_gaussians(&self) -> u32 {
-        self.params.num_gaussians
-    }
-}
+use crate::gaussians::{SceneInput, BASE_FLOATS};
 
 /// Compiled pipelines and reusable buffers on one device. Not thread-safe by itself:
 /// callers serialise access (the Python binding keeps one behind a mutex).
 pub struct Renderer {
     pub(super) ctx: GpuContext,
-    pub(super) sort: SortKernels,
-    pub(super) project: wgpu::ComputePipeline,
-    pub(super) gather_counts: wgpu::ComputePipeline,
-    pub(super) plan_intersections: wgpu::ComputePipeline,
-    pub(super) emit: wgpu::ComputePipeline,
-    pub(super) ranges: wgpu::ComputePipeline,
-    pub(super) rasterize: wgpu::ComputePipeline,
-    pub(super) rasterize_backward: wgpu::ComputePipeline,
-    pub(super) project_backward: wgpu::ComputePipeline,
-    present: wgpu::ComputePipeline,
+    project: ProjectKernel,
+    sort: SortKernels,
+    tiles: TileKernels,
+    blend: BlendKernel,
+    backward: BackwardKernels,
+    present: PresentKernel,
     pub(super) buffers: Buffers,
     /// Tile intersections a frame has room for (0 until the first frame sizes it).
-    pub(super) intersection_capacity: u32,
+    intersection_capacity: u32,
     /// The status buffer's overflow count at the last `check_intersections`.
-    pub(super) overflows_seen: u32,
-}
-
-pub(crate) fn pop_error(scope: wgpu::ErrorScopeGuard) -> Result<(), RasterError> {
-    match pollster::block_on(scope.pop()) {
-        Some(e) => Err(RasterError::Gpu(e.to_string())),
-        None => Ok(()),
-    }
-}
-
-/// Submits `encoder`, turning validation errors into [`RasterError::Gpu`].
-pub(crate) fn submit_checked(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    encoder: wgpu::CommandEncoder,
-) -> Result<(), RasterError> {
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    queue.submit([encoder.finish()]);
-    pop_error(scope)
-}
-
-/// Maps the first `bytes` of `staging` (a MAP_READ buffer whose copy has been submitted),
-/// waits for the device and returns them.
-pub(crate) fn read_mapped(
-    device: &wgpu::Device,
-    staging: &wgpu::Buffer,
-    bytes: u64,
-) -> Result<Vec<u8>, RasterError> {
-    let slice = staging.slice(..bytes);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| RasterError::Gpu(e.to_string()))?;
-    rx.recv()
-        .map_err(|e| RasterError::Gpu(e.to_string()))?
-        .map_err(|e| RasterError::Gpu(e.to_string()))?;
-    let data = slice
-        .get_mapped_range()
-        .map_err(|e| RasterError::Gpu(e.to_string()))?
-        .to_vec();
-    staging.unmap();
-    Ok(data)
+    overflows_seen: u32,
 }
 
 impl Renderer {
     pub fn new(ctx: GpuContext) -> Result<Self, RasterError> {
         let device = &ctx.device;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let one =
-            |label: &str, sources: &[&str]| compile(device, label, sources, &["main"]).remove(0);
-        let tiles = compile(
-            device,
-            "tiles",
-            &[COMMON_WGSL, TILES_WGSL],
-            &["gather_counts", "plan_intersections", "emit_intersections"],
-        );
-        let [gather_counts, plan_intersections, emit]: [wgpu::ComputePipeline; 3] =
-            tiles.try_into().expect("three tiles entry points");
-        // Subgroup sums cut the backward's contention, native float atomics its global
-        // adds, where the device has them.
-        let grad_sum = if ctx.has_subgroups() {
-            GRAD_SUM_SUBGROUP_WGSL
-        } else {
-            GRAD_SUM_PLAIN_WGSL
-        };
-        let grad_add = if ctx.has_float_atomics() {
-            GRAD_ADD_FLOAT_WGSL
-        } else {
-            GRAD_ADD_CAS_WGSL
-        };
         let renderer = Self {
+            project: ProjectKernel::new(device),
             sort: SortKernels::new(device),
-            project: one("project", &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_WGSL]),
-            gather_counts,
-            plan_intersections,
-            emit,
-            ranges: one("ranges", &[COMMON_WGSL, RANGES_WGSL]),
-            rasterize: one("rasterize", &[COMMON_WGSL, RASTERIZE_WGSL]),
-            rasterize_backward: one(
-                "rasterize_backward",
-                &[COMMON_WGSL, grad_sum, grad_add, RASTERIZE_BACKWARD_WGSL],
-            ),
-            project_backward: one(
-                "project_backward",
-                &[COMMON_WGSL, GAUSSIAN_WGSL, PROJECT_BACKWARD_WGSL],
-            ),
-            present: one("present", &[COMMON_WGSL, PRESENT_WGSL]),
+            tiles: TileKernels::new(device),
+            blend: BlendKernel::new(device),
+            backward: BackwardKernels::new(device, ctx.has_subgroups(), ctx.has_float_atomics()),
+            present: PresentKernel::new(device),
             buffers: Buffers::new(device),
             intersection_capacity: 0,
             overflows_seen: 0,
@@ -326,8 +63,13 @@ impl Renderer {
         &self.ctx
     }
 
+    /// Submits `encoder`, turning validation errors into [`RasterError::Gpu`].
+    fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
+        submit_checked(&self.ctx.device, &self.ctx.queue, encoder)
+    }
+
     /// Copies `bytes` of `src` from byte `offset` to the host (waits for the queue).
-    pub(super) fn read_back(
+    fn read_back(
         &mut self,
         src: &wgpu::Buffer,
         offset: u64,
@@ -342,11 +84,11 @@ impl Renderer {
     }
 
     /// Copies `scene` into the renderer's own Gaussian buffer (training and one-off
-    /// renders; the viewer keeps a [`ResidentScene`] instead).
+    /// renders; the viewer keeps a [`GpuScene`] instead).
     pub(super) fn upload(&mut self, scene: &SceneInput<'_>) -> Result<SceneBuffer, RasterError> {
         let (n, k) = scene.validate().map_err(RasterError::InvalidInput)?;
         let device = &self.ctx.device;
-        let bytes = ResidentScene::bytes_for(n as usize, k as usize);
+        let bytes = GpuScene::bytes_for(n as usize, k as usize);
         check_scene_fits(device, n as usize, k as usize)?;
         let buffer = self.buffers.gaussians.get(device, bytes).clone();
         self.ctx
@@ -359,6 +101,360 @@ impl Renderer {
             sh_coeffs: k,
         })
     }
+
+    // ---- One frame, encoded without waiting (docs/rasterizer.md, "Frames without a
+    // wait"): projection, depth sort and the tile counts' scan; then, sized on the GPU
+    // from the scan's total (tiles.wgsl, `plan_intersections`), the intersections, their
+    // tile sort, the tiles' ranges and the blending. The per-intersection buffers have a
+    // capacity; a frame with more intersections draws only the background and is
+    // recorded as overflowed, for `check_intersections` to report and make room for.
+
+    /// Encodes and submits one frame of `scene` (stages 1–7) without waiting for the GPU,
+    /// except on a renderer whose intersection buffers no frame has sized yet: that first
+    /// frame waits once for its intersection count (call
+    /// [`Self::reserve_intersections`] first to avoid even that). The frame may overflow
+    /// (see [`Self::frame_status`]); [`Self::check_intersections`] counts such frames and makes
+    /// room. Chain [`Self::encode_backward`] on the returned frame before the next
+    /// `encode_frame`.
+    pub fn encode_frame(
+        &mut self,
+        scene: SceneBuffer,
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<Frame, RasterError> {
+        self.encode_frame_for(scene, camera, settings, true)
+    }
+
+    /// [`Self::encode_frame`]; `record`: whether an overflow counts in
+    /// [`Self::check_intersections`] (not for callers that check the frame themselves).
+    fn encode_frame_for(
+        &mut self,
+        scene: SceneBuffer,
+        camera: &Camera,
+        settings: &RenderSettings,
+        record: bool,
+    ) -> Result<Frame, RasterError> {
+        validate_camera(camera)?;
+        validate_settings(settings)?;
+        let device = self.ctx.device.clone();
+        let mut params = RenderParams::new(camera, settings, &scene);
+        params.record_overflow = record as u32;
+        params.intersection_capacity = self.intersection_capacity;
+        self.write_params(&params);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let depth_sorted = self.encode_geometry(&mut encoder, &scene);
+        if self.intersection_capacity == 0 {
+            // Nothing has sized the intersection buffers yet: wait for this frame's count.
+            self.submit(encoder)?;
+            let offsets = self.buffers.offsets.allocated();
+            let total = self.read_back(&offsets, 4 * scene.len as u64, 4)?;
+            self.reserve_intersections(u32::from_le_bytes(total[..4].try_into().expect("4")))?;
+            params.intersection_capacity = self.intersection_capacity;
+            self.write_params(&params);
+            encoder = device.create_command_encoder(&Default::default());
+        }
+        let frame = self.encode_blend(&mut encoder, scene, params, depth_sorted);
+        self.submit(encoder)?;
+        Ok(frame)
+    }
+
+    fn write_params(&self, params: &RenderParams) {
+        self.ctx
+            .queue
+            .write_buffer(&self.buffers.params, 0, bytemuck::bytes_of(params));
+    }
+
+    /// Stages 1–3: projection, depth sort, tile counts in depth order and their scan.
+    /// Returns which ping-pong buffer holds the depth-sorted Gaussian ids.
+    fn encode_geometry(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: &SceneBuffer,
+    ) -> usize {
+        let n = scene.len;
+        let device = self.ctx.device.clone();
+        let queue = &self.ctx.queue;
+        let b = &mut self.buffers;
+        let n64 = n as u64;
+        let (counts_len, sums_len) = scratch_len(n + 1);
+        let projected_bytes = std::mem::size_of::<Projected>() as u64 * n64;
+        let projected = b.projected.get(&device, projected_bytes).clone();
+        let tile_counts = b.tile_counts.get(&device, 4 * n64).clone();
+        let dk = [
+            b.depth_keys[0].get(&device, 4 * n64).clone(),
+            b.depth_keys[1].get(&device, 4 * n64).clone(),
+        ];
+        let dv = [
+            b.depth_vals[0].get(&device, 4 * n64).clone(),
+            b.depth_vals[1].get(&device, 4 * n64).clone(),
+        ];
+        let offsets = b.offsets.get(&device, 4 * (n64 + 1)).clone();
+        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
+        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
+        b.depth_plan.write(queue, n);
+        queue.write_buffer(&b.offsets_plan, 0, bytemuck::bytes_of(&scan_plan(n + 1)));
+        if n > 0 {
+            let project = ProjectBuffers {
+                params: &b.params,
+                gaussians: &scene.buffer,
+                projected: &projected,
+                tile_counts: &tile_counts,
+                depth_keys: &dk[0],
+                depth_vals: &dv[0],
+            };
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            self.project.encode(&mut pass, &device, &project, n);
+        }
+        let depth_sorted = self.sort.encode_sort(
+            &device,
+            encoder,
+            [&dk[0], &dk[1]],
+            [&dv[0], &dv[1]],
+            &sort_counts,
+            &block_sums,
+            &b.depth_plan,
+            32,
+        );
+        self.tiles.encode_gather(
+            &mut encoder.begin_compute_pass(&Default::default()),
+            &device,
+            &b.params,
+            &tile_counts,
+            &dv[depth_sorted],
+            &offsets,
+            n,
+        );
+        self.sort
+            .encode_scan(&device, encoder, &offsets, &block_sums, &b.offsets_plan);
+        depth_sorted
+    }
+
+    /// Stages 4–7, sized on the GPU: the plan from the scan's total, intersections, tile
+    /// sort, ranges, blending.
+    fn encode_blend(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: SceneBuffer,
+        params: RenderParams,
+        depth_sorted: usize,
+    ) -> Frame {
+        let device = self.ctx.device.clone();
+        let b = &mut self.buffers;
+        let n = params.num_gaussians;
+        let num_tiles = params.tiles_x * params.tiles_y;
+        let pixels = params.width as u64 * params.height as u64;
+        let projected = b.projected.allocated();
+        let tile_counts = b.tile_counts.allocated();
+        let depth_order = b.depth_vals[depth_sorted].allocated();
+        let offsets = b.offsets.allocated();
+        let ranges = b.ranges.get(&device, 8 * num_tiles as u64).clone();
+        let out_pixels = b
+            .pixels
+            .get(&device, 4 * PIXEL_CHANNELS as u64 * pixels)
+            .clone();
+        let pixel_state = b.pixel_state.get(&device, 8 * pixels).clone();
+        let keys = [b.isect_keys[0].allocated(), b.isect_keys[1].allocated()];
+        let gaussians = [
+            b.isect_gaussians[0].allocated(),
+            b.isect_gaussians[1].allocated(),
+        ];
+        let (counts_len, sums_len) = scratch_len(self.intersection_capacity);
+        let sort_counts = b.sort_counts.get(&device, 4 * counts_len as u64).clone();
+        let block_sums = b.block_sums.get(&device, 4 * sums_len as u64).clone();
+        let intersections = IntersectionBuffers {
+            params: &b.params,
+            projected: &projected,
+            tile_counts: &tile_counts,
+            depth_order: &depth_order,
+            offsets: &offsets,
+            keys: &keys[0],
+            gaussians: &gaussians[0],
+            tile_plan: &b.tile_plan.sort,
+            tile_scan_plan: &b.tile_plan.scan,
+            status: &b.status,
+        };
+        self.tiles.encode_intersections(
+            &mut encoder.begin_compute_pass(&Default::default()),
+            &device,
+            &intersections,
+            n,
+        );
+        let tile_bits = u32::BITS - (num_tiles - 1).leading_zeros();
+        let sorted = self.sort.encode_sort(
+            &device,
+            encoder,
+            [&keys[0], &keys[1]],
+            [&gaussians[0], &gaussians[1]],
+            &sort_counts,
+            &block_sums,
+            &b.tile_plan,
+            tile_bits,
+        );
+        encoder.clear_buffer(&ranges, 0, None);
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            self.tiles.encode_ranges(
+                &mut pass,
+                &device,
+                &b.tile_plan.sort,
+                &keys[sorted],
+                &ranges,
+            );
+            let blend = BlendBuffers {
+                params: &b.params,
+                projected: &projected,
+                sorted_gaussians: &gaussians[sorted],
+                ranges: &ranges,
+                pixels: &out_pixels,
+                pixel_state: &pixel_state,
+            };
+            self.blend
+                .encode(&mut pass, &device, &blend, params.tiles());
+        }
+        Frame {
+            scene,
+            params,
+            projected,
+            tile_counts,
+            sorted_gaussians: gaussians[sorted].clone(),
+            ranges,
+            pixel_state,
+            pixels: out_pixels,
+        }
+    }
+
+    /// Encodes and submits the backward of `frame` (the last [`Self::encode_frame`]):
+    /// `v_pixels` holds the loss's gradient w.r.t. the forward's H·W·5 output (the layout
+    /// of [`Renderer::frame_pixels`]), and `grads` receives the gradients in [`Gradients`]' order as
+    /// one SoA buffer of `BASE_FLOATS · n + 3 k n` floats (sections of n, whatever the
+    /// scene's stride). Nothing is read back and nothing waits: a training loop chains this
+    /// with its optimiser on the device. Gradients are summed with atomics, so their float
+    /// rounding may differ between runs (docs/rasterizer.md, "Backward").
+    pub fn encode_backward(
+        &mut self,
+        frame: &Frame,
+        v_pixels: &wgpu::Buffer,
+        grads: &wgpu::Buffer,
+    ) -> Result<(), RasterError> {
+        let device = self.ctx.device.clone();
+        let n = frame.params.num_gaussians as u64;
+        let k = frame.params.sh_coeffs as u64;
+        let (width, height) = frame.size();
+        let pixel_bytes = 4 * PIXEL_CHANNELS as u64 * width as u64 * height as u64;
+        let grad_bytes = 4 * (BASE_FLOATS as u64 * n + 3 * k * n);
+        if v_pixels.size() < pixel_bytes || grads.size() < grad_bytes {
+            return Err(RasterError::InvalidInput(format!(
+                "the backward of a {width}x{height} frame of {n} Gaussians needs a pixel \
+                 gradient of {pixel_bytes} bytes and room for {grad_bytes} bytes of \
+                 gradients, got {} and {}",
+                v_pixels.size(),
+                grads.size()
+            )));
+        }
+        let sums = self
+            .buffers
+            .gaussian_grads
+            .get(&device, 4 * GAUSSIAN_GRAD_FLOATS * n)
+            .clone();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.clear_buffer(&sums, 0, None);
+        let buffers = BackwardBuffers {
+            params: &self.buffers.params,
+            gaussians: &frame.scene.buffer,
+            projected: &frame.projected,
+            tile_counts: &frame.tile_counts,
+            sorted_gaussians: &frame.sorted_gaussians,
+            ranges: &frame.ranges,
+            pixel_state: &frame.pixel_state,
+            v_pixels,
+            sums: &sums,
+            grads,
+        };
+        self.backward.encode(
+            &mut encoder.begin_compute_pass(&Default::default()),
+            &device,
+            &buffers,
+            n as u32,
+            frame.params.tiles(),
+        );
+        self.submit(encoder)
+    }
+
+    // ---- Room for intersections.
+
+    /// Makes room for frames of `m` tile intersections (the per-intersection buffers grow,
+    /// with a quarter of headroom within the binding limit, and never shrink); fails when
+    /// `m` of them exceed one storage binding. A training loop may call this up front
+    /// (after densification, say) to keep frames from overflowing.
+    pub fn reserve_intersections(&mut self, m: u32) -> Result<(), RasterError> {
+        let device = self.ctx.device.clone();
+        ensure_intersections_fit(&device, m, 4)?;
+        if m <= self.intersection_capacity && self.intersection_capacity > 0 {
+            return Ok(());
+        }
+        let b = &mut self.buffers;
+        let room = b
+            .isect_keys
+            .iter_mut()
+            .chain(b.isect_gaussians.iter_mut())
+            .map(|grow| grow.get(&device, 4 * m.max(1) as u64).size() / 4)
+            .min()
+            .expect("four buffers");
+        self.intersection_capacity = u32::try_from(room).unwrap_or(u32::MAX);
+        Ok(())
+    }
+
+    /// The buffer the last [`Self::encode_frame`] left the forward's output in: per pixel,
+    /// row-major, `PIXEL_CHANNELS` f32 (r, g, b with the background, alpha, Σ z·α·T).
+    pub fn frame_pixels(&self) -> &wgpu::Buffer {
+        self.buffers
+            .pixels
+            .buffer
+            .as_ref()
+            .expect("allocated by encode_frame")
+    }
+
+    /// The status of the last [`Self::encode_frame`]: `STATUS_WORDS` u32, of which word
+    /// [`super::STATUS_DRAWN`] is 1 if the frame was drawn and 0 if it overflowed its
+    /// intersection buffers (it then shows only the background and its backward gives zero
+    /// gradients): a training loop's optimiser can skip that step on the device by reading
+    /// it.
+    pub fn frame_status(&self) -> &wgpu::Buffer {
+        &self.buffers.status
+    }
+
+    /// Tile intersections a frame has room for (0 before the first frame).
+    pub fn intersection_capacity(&self) -> u32 {
+        self.intersection_capacity
+    }
+
+    /// Reads the counts the frames of `encode_frame` left (a 16-byte read-back: it waits
+    /// for the queue, so call it where the loop waits anyway, e.g. with its loss every N
+    /// steps) and makes room: when the largest frame so far used more than four fifths of
+    /// the capacity, the buffers grow to a quarter more than it. Fails when that frame
+    /// needs more than the device's binding limit.
+    pub fn check_intersections(&mut self) -> Result<IntersectionCheck, RasterError> {
+        let status = self.buffers.status.clone();
+        let words: Vec<u32> =
+            bytemuck::pod_collect_to_vec(&self.read_back(&status, 0, 4 * STATUS_WORDS as u64)?);
+        let overflowed = words[0].wrapping_sub(self.overflows_seen);
+        self.overflows_seen = words[0];
+        let max_intersections = words[1];
+        if max_intersections as u64 * 5 > self.intersection_capacity as u64 * 4 {
+            let limit = binding_limit(&self.ctx.device) / 4;
+            let wanted = (max_intersections as u64 * 5 / 4)
+                .min(limit)
+                .max(max_intersections as u64);
+            self.reserve_intersections(u32::try_from(wanted).unwrap_or(u32::MAX))?;
+        }
+        Ok(IntersectionCheck {
+            overflowed,
+            max_intersections,
+            capacity: self.intersection_capacity,
+        })
+    }
+
+    // ---- The calls that wait for their results.
 
     /// For the calls that wait for their frame anyway (`forward`, `backward`, `draw`):
     /// encodes `scene`'s frame and what `then` adds to it, waits, and returns the frame's
@@ -434,12 +530,68 @@ impl Renderer {
         Ok((bytemuck::pod_collect_to_vec(&data), count))
     }
 
-    /// Draws the resident `scene` into `target` (a [`target_texture`] of the camera's size)
+    /// Gradients of a loss w.r.t. the scene, given its gradient w.r.t. the forward
+    /// output (`v_pixels`: H·W·5 floats in the forward's layout). Re-runs the forward
+    /// geometry, so it needs no state from an earlier call.
+    pub fn backward(
+        &mut self,
+        scene: &SceneInput<'_>,
+        camera: &Camera,
+        settings: &RenderSettings,
+        v_pixels: &[f32],
+    ) -> Result<Gradients, RasterError> {
+        let pixels = camera.width as usize * camera.height as usize;
+        if v_pixels.len() != PIXEL_CHANNELS * pixels {
+            return Err(RasterError::InvalidInput(format!(
+                "pixel gradient has {} values, expected {}",
+                v_pixels.len(),
+                PIXEL_CHANNELS * pixels
+            )));
+        }
+        let scene = self.upload(scene)?;
+        let device = self.ctx.device.clone();
+        let v_buf = self
+            .buffers
+            .v_pixels
+            .get(&device, 4 * v_pixels.len() as u64)
+            .clone();
+        self.ctx
+            .queue
+            .write_buffer(&v_buf, 0, bytemuck::cast_slice(v_pixels));
+        let n = scene.len as u64;
+        let k = scene.sh_coeffs as u64;
+        let grad_bytes = 4 * (BASE_FLOATS as u64 * n + 3 * k * n);
+        let (_, flat) = self.render_and_read(&scene, camera, settings, |renderer, frame| {
+            let grads = renderer.buffers.grads.get(&device, grad_bytes).clone();
+            renderer.encode_backward(frame, &v_buf, &grads)?;
+            Ok(Some((grads, grad_bytes)))
+        })?;
+        let flat: Vec<f32> = bytemuck::pod_collect_to_vec(&flat);
+        let n = n as usize;
+        let k = k as usize;
+        let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
+            .into_iter()
+            .scan(0, |start, len| {
+                let range = *start..*start + len;
+                *start += len;
+                Some(flat[range].to_vec())
+            });
+        let mut next = || parts.next().expect("five parts");
+        Ok(Gradients {
+            means: next(),
+            log_scales: next(),
+            quats: next(),
+            opacity_logits: next(),
+            sh: next(),
+        })
+    }
+
+    /// Draws `scene`, kept on the GPU, into `target` (a [`super::target_texture`] of the camera's size)
     /// without a trip of the image through the host; waits for it and returns the number
     /// of tile intersections.
     pub fn draw(
         &mut self,
-        scene: &ResidentScene,
+        scene: &GpuScene,
         camera: &Camera,
         settings: &RenderSettings,
         target: &wgpu::Texture,
@@ -463,49 +615,19 @@ impl Renderer {
         let view = target.create_view(&Default::default());
         let (count, _) =
             self.render_and_read(&scene.as_buffer(), camera, settings, |renderer, frame| {
-                renderer.encode_present(frame, &view)?;
+                let device = &renderer.ctx.device;
+                let mut encoder = device.create_command_encoder(&Default::default());
+                let params = &renderer.buffers.params;
+                let tiles = frame.params.tiles();
+                let present = &renderer.present;
+                present.encode(&mut encoder, device, params, &frame.pixels, &view, tiles);
+                renderer.submit(encoder)?;
                 Ok(None)
             })?;
         Ok(count)
     }
 
-    /// Converts `frame`'s colours into `target` (present.wgsl).
-    fn encode_present(&self, frame: &Frame, target: &wgpu::TextureView) -> Result<(), RasterError> {
-        let device = &self.ctx.device;
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("present"),
-            layout: &self.present.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.buffers.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: frame.pixels.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(target),
-                },
-            ],
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.present);
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(frame.params.tiles_x, frame.params.tiles_y, 1);
-        }
-        self.submit(encoder)
-    }
-
-    /// Submits `encoder`, turning validation errors into [`RasterError::Gpu`].
-    pub(super) fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
-        submit_checked(&self.ctx.device, &self.ctx.queue, encoder)
-    }
-
-    /// The pixels of a [`target_texture`] as tightly packed RGBA8 rows.
+    /// The pixels of a [`super::target_texture`] as tightly packed RGBA8 rows.
     pub fn read_rgba8(&mut self, texture: &wgpu::Texture) -> Result<Vec<u8>, RasterError> {
         let (width, height) = (texture.width(), texture.height());
         let row = 4 * width;

@@ -1,9 +1,23 @@
-//! Adam on the device (`shaders/adam.wgsl`): torch.optim.Adam's update, element by
-//! element, with one learning rate per parameter group.
+//! Adam on the device (`adam.wgsl`): torch.optim.Adam's update, element by element, with
+//! one learning rate per parameter group.
 
-use crate::raster::kernels::{compile, div_ceil, run_linear, COMMON_WGSL, GAUSSIAN_WGSL};
+use crate::raster::gpu::{compile, div_ceil, run_linear};
+use crate::raster::{COMMON_WGSL, GAUSSIAN_LAYOUT_WGSL};
+use crate::wgsl::{gpu_struct, KernelModule, WgslPart};
 
-const ADAM_WGSL: &str = include_str!("../../../../shaders/adam.wgsl");
+const ADAM_WGSL: WgslPart = WgslPart {
+    file: "adam.wgsl",
+    source: include_str!("adam.wgsl"),
+    needs: &[COMMON_WGSL.file, GAUSSIAN_LAYOUT_WGSL.file],
+    reads: &[],
+};
+
+pub(crate) fn module() -> KernelModule {
+    KernelModule {
+        label: "adam",
+        parts: vec![&COMMON_WGSL, &GAUSSIAN_LAYOUT_WGSL, &ADAM_WGSL],
+    }
+}
 
 /// Parameter groups, in the order of the learning rates: means (as offsets in units of
 /// each Gaussian's initial depth), log-scales, quaternions, opacity logits, SH DC, SH rest.
@@ -18,23 +32,28 @@ pub struct AdamConfig {
     pub eps: f64,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub(super) struct AdamParams {
-    pub n_context: u32,
-    pub n_train: u32,
-    pub stride: u32,
-    pub grad_len: u32,
-    pub sh_coeffs: u32,
-    pub has_extra: u32,
-    pad0: [u32; 2],
-    beta1_complement: f32,
-    beta2: f32,
-    beta2_complement: f32,
-    eps: f32,
-    bias2_sqrt: f32,
-    pad1: [f32; 3],
-    neg_step: [f32; 8],
+gpu_struct! {
+    /// The uniform of one Adam step (adam.wgsl documents each field).
+    pub(crate) struct AdamParams {
+        n_context: u32,
+        n_train: u32,
+        stride: u32,
+        grad_len: u32,
+        sh_coeffs: u32,
+        has_extra: u32,
+        pad0: u32,
+        pad1: u32,
+        beta1_complement: f32,
+        beta2: f32,
+        beta2_complement: f32,
+        eps: f32,
+        bias2_sqrt: f32,
+        pad2: f32,
+        pad3: f32,
+        pad4: f32,
+        /// Per group, four to a vector (two groups unused).
+        neg_step: [[f32; 4]; 2],
+    }
 }
 
 /// Where the trained Gaussians and their gradients lie (see adam.wgsl's header).
@@ -55,8 +74,12 @@ impl AdamConfig {
         let t = step as f64;
         let bias1 = 1.0 - self.beta1.powf(t);
         let bias2 = 1.0 - self.beta2.powf(t);
-        let mut neg_step = [0.0f32; 8];
-        for (out, lr) in neg_step.iter_mut().zip(self.learning_rates) {
+        let mut neg_step = [[0.0f32; 4]; 2];
+        for (out, lr) in neg_step
+            .as_flattened_mut()
+            .iter_mut()
+            .zip(self.learning_rates)
+        {
             *out = -(lr / bias1) as f32;
         }
         AdamParams {
@@ -66,13 +89,16 @@ impl AdamConfig {
             grad_len: layout.n_context + layout.n_train,
             sh_coeffs: layout.sh_coeffs,
             has_extra: layout.has_extra as u32,
-            pad0: [0; 2],
+            pad0: 0,
+            pad1: 0,
             beta1_complement: (1.0 - self.beta1) as f32,
             beta2: self.beta2 as f32,
             beta2_complement: (1.0 - self.beta2) as f32,
             eps: self.eps as f32,
             bias2_sqrt: bias2.sqrt() as f32,
-            pad1: [0.0; 3],
+            pad2: 0.0,
+            pad3: 0.0,
+            pad4: 0.0,
             neg_step,
         }
     }
@@ -97,13 +123,7 @@ pub(super) struct AdamKernel {
 impl AdamKernel {
     pub(super) fn new(device: &wgpu::Device) -> Self {
         Self {
-            pipeline: compile(
-                device,
-                "adam",
-                &[COMMON_WGSL, GAUSSIAN_WGSL, ADAM_WGSL],
-                &["main"],
-            )
-            .remove(0),
+            pipeline: compile(device, &module(), &["main"]).remove(0),
         }
     }
 

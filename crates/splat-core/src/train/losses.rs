@@ -1,20 +1,33 @@
 //! The lifting phase's losses and their per-pixel gradient on the device
-//! (`shaders/train_losses.wgsl`; the torch reference is `GaussianTrainer.loss_at`).
+//! (`losses.wgsl`; the torch reference is `GaussianTrainer.loss_at`).
 
-use crate::raster::kernels::{compile, div_ceil, run_linear, COMMON_WGSL};
-use crate::raster::renderer::PIXEL_CHANNELS;
+use crate::raster::gpu::{compile, div_ceil, run_linear};
+use crate::raster::{COMMON_WGSL, PIXEL_CHANNELS};
+use crate::wgsl::{gpu_struct, KernelModule, WgslPart};
 
-const LOSSES_WGSL: &str = include_str!("../../../../shaders/train_losses.wgsl");
+const LOSSES_WGSL: WgslPart = WgslPart {
+    file: "losses.wgsl",
+    source: include_str!("losses.wgsl"),
+    needs: &[COMMON_WGSL.file],
+    reads: &[],
+};
+
+pub(crate) fn module() -> KernelModule {
+    KernelModule {
+        label: "train losses",
+        parts: vec![&COMMON_WGSL, &LOSSES_WGSL],
+    }
+}
 
 /// kornia's SSIM window: 11 taps, σ = 1.5.
 pub const SSIM_WINDOW: u32 = 11;
 const SSIM_SIGMA: f32 = 1.5;
 /// Floats per pixel of the moments (5 × vec4) and of the gradient coefficients (3 × vec4);
-/// partial sums per workgroup; sums (train_losses.wgsl).
+/// partial sums per workgroup; sums (losses.wgsl).
 const MOMENT_FLOATS: u64 = 20;
 const COEFF_FLOATS: u64 = 12;
 const PARTIALS: u64 = 8;
-/// Pixels per invocation of the summing passes (train_losses.wgsl).
+/// Pixels per invocation of the summing passes (losses.wgsl).
 const PIXELS_PER_INVOCATION: u32 = 8;
 const TOTALS: u64 = 16;
 /// Floats of the loss read-back: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered weight,
@@ -52,20 +65,24 @@ pub fn ssim_taps(window: u32) -> Vec<f32> {
     gauss.iter().map(|g| g / sum).collect()
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub(super) struct LossParams {
-    width: u32,
-    height: u32,
-    radius: u32,
-    has_previous: u32,
-    weight_sum: f32,
-    lambda_l1: f32,
-    lambda_ssim: f32,
-    lambda_temporal: f32,
-    lambda_geo: f32,
-    pad: [u32; 3],
-    taps: [f32; 12],
+gpu_struct! {
+    /// The uniform of one view's loss passes (losses.wgsl documents each field).
+    pub(crate) struct LossParams {
+        width: u32,
+        height: u32,
+        radius: u32,
+        has_previous: u32,
+        weight_sum: f32,
+        lambda_l1: f32,
+        lambda_ssim: f32,
+        lambda_temporal: f32,
+        lambda_geo: f32,
+        pad0: u32,
+        pad1: u32,
+        pad2: u32,
+        /// The window's taps, four to a vector.
+        taps: [[f32; 4]; 3],
+    }
 }
 
 impl LossParams {
@@ -81,8 +98,8 @@ impl LossParams {
         has_depth: bool,
     ) -> Self {
         let window = ssim_window(width, height);
-        let mut taps = [0.0; 12];
-        taps[..window as usize].copy_from_slice(&ssim_taps(window));
+        let mut taps = [[0.0; 4]; 3];
+        taps.as_flattened_mut()[..window as usize].copy_from_slice(&ssim_taps(window));
         Self {
             width,
             height,
@@ -93,7 +110,9 @@ impl LossParams {
             lambda_ssim: weights.ssim,
             lambda_temporal: weights.temporal,
             lambda_geo: if has_depth { weights.geo } else { 0.0 },
-            pad: [0; 3],
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
             taps,
         }
     }
@@ -191,7 +210,7 @@ impl LossKernels {
             "loss_value",
         ];
         let [ssim_rows, ssim_columns, totals_a, pearson_terms, totals_b, adjoint_columns, pixel_grads, loss_value]: [wgpu::ComputePipeline; 8] =
-            compile(device, "train losses", &[COMMON_WGSL, LOSSES_WGSL], &entries)
+            compile(device, &module(), &entries)
                 .try_into()
                 .expect("eight entry points");
         Self {

@@ -5,9 +5,9 @@
 //! - [`session`]: [`TrainSession`], the buffers and one step (forward → losses → backward
 //!   → Adam), the read-backs at checkpoints and densification, the traffic counter.
 //! - [`losses`]: 0.8·L1 + 0.2·D-SSIM, L_temporal and L_geo with their pixel gradient
-//!   (`shaders/train_losses.wgsl`).
+//!   (`losses.wgsl`).
 //! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
-//!   (`shaders/adam.wgsl`).
+//!   (`adam.wgsl`).
 //!
 //! The torch trainer (`pano4d.lift.optimize.GaussianTrainer`) is the reference; the
 //! Python tests compare the two step for step.
@@ -21,3 +21,10 @@ mod tests;
 pub use adam::{AdamConfig, GROUPS};
 pub use losses::{ssim_taps, ssim_window, LossWeights, LOSS_PARTS};
 pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, ViewTargets};
+
+/// The training loop's kernel modules (for the checks of the WGSL against the Rust
+/// structs).
+#[cfg(test)]
+pub(crate) fn kernel_modules() -> Vec<crate::wgsl::KernelModule> {
+    vec![losses::module(), adam::module()]
+}

@@ -12,10 +12,11 @@ use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
 use super::losses::{LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS};
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
-use crate::raster::renderer::{
-    pop_error, read_mapped, submit_checked, Frame, RenderSettings, Renderer, PIXEL_CHANNELS,
+use crate::raster::gpu::{pop_error, read_mapped, submit_checked};
+use crate::raster::{
+    binding_limit, Frame, GpuScene, IntersectionCheck, RasterError, RenderSettings, Renderer,
+    SceneBuffer, PIXEL_CHANNELS,
 };
-use crate::raster::{binding_limit, IntersectionCheck, RasterError, ResidentScene, SceneBuffer};
 
 /// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
 /// L_geo) and the previous timestamp's render (h·w·3, for L_temporal).
@@ -47,7 +48,7 @@ pub struct Traffic {
 
 /// The trained set with its optimiser state. Parameters and moments are in the packed SoA
 /// layout of [`SceneInput::packed`] (means, log-scales, quaternions, opacity logits, SH);
-/// the mean moments are those of the offsets (see shaders/adam.wgsl).
+/// the mean moments are those of the offsets (see adam.wgsl).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TrainState {
     pub params: Vec<f32>,
@@ -362,7 +363,7 @@ impl TrainSession {
         if total <= self.capacity && self.capacity > 0 {
             return Ok(());
         }
-        let bytes = ResidentScene::bytes_for(total as usize, self.sh_coeffs as usize);
+        let bytes = GpuScene::bytes_for(total as usize, self.sh_coeffs as usize);
         let allowed = binding_limit(&self.device);
         if bytes > allowed {
             return Err(RasterError::TooLarge {

@@ -151,7 +151,7 @@ fn ssim_window_and_taps_are_kornias() {
     assert_eq!(ssim_window(7, 40), 5);
 }
 
-/// torch's `_single_tensor_adam` for one element (as in shaders/adam.wgsl): updates the
+/// torch's `_single_tensor_adam` for one element (as in adam.wgsl): updates the
 /// moments and returns the parameter's step.
 fn torch_adam(m: &mut f32, v: &mut f32, g: f32, lr: f64, step: u64) -> f32 {
     let t = step as f64;

@@ -2,7 +2,8 @@
 //! calls a training loop chains) and the storage-binding limits, reached cheaply on any
 //! adapter through a deliberately small one.
 
-use super::super::kernels::{grid, sort_plans};
+use super::super::gpu::grid;
+use super::super::sort::sort_plans;
 use super::super::{DeviceOptions, STATUS_DRAWN};
 use super::*;
 
@@ -130,6 +131,8 @@ fn the_gpu_sizes_the_tile_sort_as_the_host_would() {
             .expect("frame");
         let m = read(&renderer.ctx, renderer.frame_status(), 4)[2];
         let (sort, scan) = sort_plans(m);
+        let sort: [u32; 5] = bytemuck::cast(sort);
+        let scan: [u32; 5] = bytemuck::cast(scan);
         let plan = &renderer.buffers.tile_plan;
         let words = read(&renderer.ctx, &plan.sort, 8);
         assert_eq!(words[..5], sort, "{n} Gaussians, {m} intersections");
@@ -240,7 +243,7 @@ fn a_scene_just_under_the_binding_limit_renders() {
     let limit = 4u64 << 20;
     let mut renderer = renderer_with_limit(Some(limit));
     assert_eq!(binding_limit(&renderer.context().device), limit);
-    let per_gaussian = ResidentScene::bytes_for(1, 16);
+    let per_gaussian = GpuScene::bytes_for(1, 16);
     let n = (limit as f64 * 0.99 / per_gaussian as f64) as usize;
     let mut set = random_set(n, 21);
     set.sh_degree = 3;

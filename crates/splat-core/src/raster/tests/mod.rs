@@ -5,9 +5,9 @@
 mod frames;
 mod gradients;
 
-use super::kernels::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
+use super::sort::{plan_buffer, scan_plan, scratch_len, SortKernels, SortPlan};
 use super::{
-    binding_limit, target_texture, GpuContext, RasterError, RenderSettings, Renderer, ResidentScene,
+    binding_limit, target_texture, GpuContext, GpuScene, RasterError, RenderSettings, Renderer,
 };
 use crate::camera::Camera;
 use crate::gaussians::{GaussianSet, SceneInput};
@@ -140,7 +140,7 @@ fn scan_matches_a_cpu_prefix_sum() {
         let sums = storage(&ctx.device, &vec![0; sums_len as usize]);
         let plan = plan_buffer(&ctx.device, "test scan plan");
         ctx.queue
-            .write_buffer(&plan, 0, bytemuck::cast_slice(&scan_plan(len as u32)));
+            .write_buffer(&plan, 0, bytemuck::bytes_of(&scan_plan(len as u32)));
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
         kernels.encode_scan(&ctx.device, &mut encoder, &buf, &sums, &plan);
         ctx.queue.submit([encoder.finish()]);
@@ -319,7 +319,7 @@ fn assert_close_rgba(got: &[u8], want: &[u8], what: &str) {
 }
 
 #[test]
-fn resident_scene_draws_what_the_forward_renders() {
+fn a_gpu_scene_draws_what_the_forward_renders() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let device = renderer.context().device.clone();
     let queue = renderer.context().queue.clone();
@@ -327,8 +327,8 @@ fn resident_scene_draws_what_the_forward_renders() {
     let cam = camera(w, h);
     let target = target_texture(&device, w, h);
     let static_set = random_set(300, 1);
-    let mut resident = ResidentScene::new(&device, 500, 4).expect("resident scene");
-    resident
+    let mut scene_on_gpu = GpuScene::new(&device, 500, 4).expect("gpu scene");
+    scene_on_gpu
         .write(&queue, 0, &SceneInput::from(&static_set))
         .expect("static set");
     let settings = RenderSettings {
@@ -338,12 +338,12 @@ fn resident_scene_draws_what_the_forward_renders() {
     // Dynamic sets of different sizes replace each other after the static set.
     for (count, seed) in [(150, 2), (40, 3), (200, 4)] {
         let dynamic = random_set(count, seed);
-        resident
+        scene_on_gpu
             .write(&queue, static_set.len(), &SceneInput::from(&dynamic))
             .expect("dynamic set");
-        assert_eq!(resident.len(), 300 + count);
+        assert_eq!(scene_on_gpu.len(), 300 + count);
         renderer
-            .draw(&resident, &cam, &settings, &target)
+            .draw(&scene_on_gpu, &cam, &settings, &target)
             .expect("draw");
         let got = renderer.read_rgba8(&target).expect("read back");
         assert!(
@@ -362,7 +362,7 @@ fn resident_scene_draws_what_the_forward_renders() {
         ..settings
     };
     renderer
-        .draw(&resident, &cam, &scaled, &target)
+        .draw(&scene_on_gpu, &cam, &scaled, &target)
         .expect("draw");
     let got = renderer.read_rgba8(&target).expect("read back");
     let mut whole = concat(&static_set, &random_set(200, 4));
@@ -376,30 +376,34 @@ fn resident_scene_draws_what_the_forward_renders() {
 }
 
 #[test]
-fn resident_scene_refuses_what_does_not_fit() {
+fn a_gpu_scene_refuses_what_does_not_fit() {
     let renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let device = &renderer.context().device;
     let queue = &renderer.context().queue;
-    let mut resident = ResidentScene::new(device, 10, 4).expect("resident scene");
+    let mut scene_on_gpu = GpuScene::new(device, 10, 4).expect("gpu scene");
     let eight = random_set(8, 5);
-    assert!(resident.write(queue, 0, &SceneInput::from(&eight)).is_ok());
+    assert!(scene_on_gpu
+        .write(queue, 0, &SceneInput::from(&eight))
+        .is_ok());
     // Past the capacity, or leaving a gap after what is written.
-    assert!(resident.write(queue, 3, &SceneInput::from(&eight)).is_err());
-    assert!(resident
+    assert!(scene_on_gpu
+        .write(queue, 3, &SceneInput::from(&eight))
+        .is_err());
+    assert!(scene_on_gpu
         .write(queue, 9, &SceneInput::from(&random_set(1, 6)))
         .is_err());
     // Another SH degree.
     let dc_only = one_gaussian([5.0, 0.0, 0.0], 0.0, 0.0);
-    assert!(resident
+    assert!(scene_on_gpu
         .write(queue, 8, &SceneInput::from(&dc_only))
         .is_err());
-    assert_eq!(resident.len(), 8);
-    assert!(ResidentScene::new(device, 10, 5).is_err());
+    assert_eq!(scene_on_gpu.len(), 8);
+    assert!(GpuScene::new(device, 10, 5).is_err());
     let allowed = binding_limit(device);
-    let over = (allowed / ResidentScene::bytes_for(1, 16)) as usize + 1;
+    let over = (allowed / GpuScene::bytes_for(1, 16)) as usize + 1;
     if over < (u32::MAX / 64) as usize {
         assert!(matches!(
-            ResidentScene::new(device, over, 16),
+            GpuScene::new(device, over, 16),
             Err(RasterError::TooLarge { .. })
         ));
     }
@@ -409,11 +413,11 @@ fn resident_scene_refuses_what_does_not_fit() {
 fn draw_checks_its_target() {
     let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
     let device = renderer.context().device.clone();
-    let resident = ResidentScene::new(&device, 4, 1).expect("resident scene");
+    let scene_on_gpu = GpuScene::new(&device, 4, 1).expect("scene_on_gpu scene");
     let wrong_size = target_texture(&device, 8, 9);
     let settings = RenderSettings::default();
     assert!(renderer
-        .draw(&resident, &camera(8, 8), &settings, &wrong_size)
+        .draw(&scene_on_gpu, &camera(8, 8), &settings, &wrong_size)
         .is_err());
     let nan_scale = RenderSettings {
         splat_scale: f32::NAN,
@@ -421,11 +425,11 @@ fn draw_checks_its_target() {
     };
     let target = target_texture(&device, 8, 8);
     assert!(renderer
-        .draw(&resident, &camera(8, 8), &nan_scale, &target)
+        .draw(&scene_on_gpu, &camera(8, 8), &nan_scale, &target)
         .is_err());
     // An empty scene draws the background.
     renderer
-        .draw(&resident, &camera(8, 8), &settings, &target)
+        .draw(&scene_on_gpu, &camera(8, 8), &settings, &target)
         .expect("empty draw");
     assert!(renderer
         .read_rgba8(&target)

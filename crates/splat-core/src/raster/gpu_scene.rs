@@ -1,5 +1,7 @@
-//! Gaussians kept on the GPU between frames, for the viewer: the static set is written
-//! once and each timestamp's dynamic set overwrites only the part after it.
+//! Gaussian sets on the GPU: the [`SceneBuffer`] every frame draws, the viewer's
+//! [`GpuScene`] kept between frames (the static set written once, each timestamp's
+//! dynamic set over the part after it) and [`StoredSet`]s copied into it, and the binding
+//! limit that bounds them.
 
 use super::RasterError;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
@@ -29,7 +31,7 @@ pub(crate) fn check_scene_fits(
     n: usize,
     k: usize,
 ) -> Result<(), RasterError> {
-    let bytes = ResidentScene::bytes_for(n, k);
+    let bytes = GpuScene::bytes_for(n, k);
     let allowed = binding_limit(device);
     if bytes > allowed {
         return Err(RasterError::TooLarge {
@@ -43,14 +45,14 @@ pub(crate) fn check_scene_fits(
 
 /// Room for `capacity` Gaussians of one SH degree on the GPU, of which the first
 /// [`Self::len`] are drawn by [`super::Renderer::draw`].
-pub struct ResidentScene {
+pub struct GpuScene {
     buffer: wgpu::Buffer,
     capacity: u32,
     sh_coeffs: u32,
     len: u32,
 }
 
-impl ResidentScene {
+impl GpuScene {
     /// Bytes of the buffer for `n` Gaussians with `k` SH coefficients per channel.
     pub fn bytes_for(n: usize, k: usize) -> u64 {
         4 * n as u64 * (BASE_FLOATS + 3 * k) as u64
@@ -77,7 +79,7 @@ impl ResidentScene {
         // (bytes_for is a multiple of 4, as copies need, so a scene under the limit fits).
         let bytes = Self::bytes_for(capacity, sh_coeffs).max(256);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("resident gaussians"),
+            label: Some("gpu scene"),
             size: bytes,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
@@ -196,7 +198,7 @@ fn section_widths(sh_coeffs: u32) -> [u64; 5] {
 
 /// A Gaussian set uploaded once into a GPU buffer of its own, in the SoA layout with a
 /// stride of its own length. No shader binds it, so only the device's buffer size limit
-/// applies (not the binding limit); [`ResidentScene::copy_from`] copies it into the
+/// applies (not the binding limit); [`GpuScene::copy_from`] copies it into the
 /// scene on the GPU. The viewer keeps every timestamp's dynamic set this way when they fit.
 pub struct StoredSet {
     buffer: wgpu::Buffer,
@@ -212,7 +214,7 @@ impl StoredSet {
         part: &SceneInput<'_>,
     ) -> Result<Self, RasterError> {
         let (n, k) = part.validate().map_err(RasterError::InvalidInput)?;
-        let bytes = ResidentScene::bytes_for(n as usize, k as usize);
+        let bytes = GpuScene::bytes_for(n as usize, k as usize);
         let allowed = device.limits().max_buffer_size;
         if bytes > allowed {
             return Err(RasterError::TooLarge {
@@ -288,9 +290,9 @@ mod tests {
         let [first, second] = [set(70, 5.0), set(30, 9.0)];
         let stored = [&first, &second]
             .map(|s| StoredSet::upload(&device, &queue, &SceneInput::from(s)).expect("stored set"));
-        assert_eq!(stored[0].bytes(), ResidentScene::bytes_for(70, 4));
-        let mut written = ResidentScene::new(&device, 200, 4).expect("scene");
-        let mut copied = ResidentScene::new(&device, 200, 4).expect("scene");
+        assert_eq!(stored[0].bytes(), GpuScene::bytes_for(70, 4));
+        let mut written = GpuScene::new(&device, 200, 4).expect("scene");
+        let mut copied = GpuScene::new(&device, 200, 4).expect("scene");
         for scene in [&mut written, &mut copied] {
             scene
                 .write(&queue, 0, &SceneInput::from(&static_set))

@@ -1,18 +1,8 @@
 // Per-Gaussian maths shared by the projection (forward) and its backward pass.
-// Requires `params` and `gaussians` bindings in the including shader; the Gaussian buffer
-// has SoA sections of `params.gaussian_stride` entries.
-
-struct GaussianOffsets {
-    means: u32,
-    log_scales: u32,
-    quats: u32,
-    opacity: u32,
-    sh: u32,
-}
-
-fn gaussian_offsets(n: u32) -> GaussianOffsets {
-    return GaussianOffsets(0u, 3u * n, 6u * n, 10u * n, 11u * n);
-}
+// After common.wgsl and gaussian_layout.wgsl. Reads two globals the including kernel
+// declares (its part list in Rust says so too): `params: RenderParams` and
+// `gaussians: array<f32>`, the Gaussian buffer in SoA sections of
+// `params.gaussian_stride` entries.
 
 struct Gaussian {
     mean: vec3<f32>,

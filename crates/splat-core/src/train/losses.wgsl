@@ -19,9 +19,11 @@
 // Passes (train/losses.rs): ssim_rows; ssim_columns (also every per-pixel summand of sums
 // A, summed per workgroup); totals_a; pearson_terms (sums B per workgroup); totals_b;
 // adjoint_columns; pixel_grads; loss_value. Sums are fixed trees (no atomics), so a step
-// is deterministic.
+// is deterministic. After common.wgsl (`linear_workgroup`).
 
-struct TrainParams {
+// Rust: train/losses.rs's `LossParams` (the one declaration; the wgsl tests check this one
+// against it).
+struct LossParams {
     width: u32,
     height: u32,
     // Window half-width: the window has 2·radius + 1 taps.
@@ -39,7 +41,7 @@ struct TrainParams {
     taps: array<vec4<f32>, 3>,
 }
 
-@group(0) @binding(0) var<uniform> tp: TrainParams;
+@group(0) @binding(0) var<uniform> lp: LossParams;
 @group(0) @binding(1) var<storage, read> pixels: array<f32>;
 @group(0) @binding(2) var<storage, read> target_rgb: array<f32>;
 @group(0) @binding(3) var<storage, read> weights: array<f32>;
@@ -91,11 +93,11 @@ const PIXELS_PER_INVOCATION: u32 = 8u;
 var<workgroup> scratch: array<array<vec4<f32>, 2>, 256>;
 
 fn pixel_count() -> u32 {
-    return tp.width * tp.height;
+    return lp.width * lp.height;
 }
 
 fn tap(t: i32) -> f32 {
-    return tp.taps[u32(t) / 4u][u32(t) % 4u];
+    return lp.taps[u32(t) / 4u][u32(t) % 4u];
 }
 
 // torch's 'reflect' padding: −1 → 1, n → n − 2.
@@ -195,10 +197,10 @@ fn ssim_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     if p >= pixel_count() {
         return;
     }
-    let w = i32(tp.width);
-    let x0 = i32(p % tp.width);
-    let row = p - p % tp.width;
-    let r = i32(tp.radius);
+    let w = i32(lp.width);
+    let x0 = i32(p % lp.width);
+    let row = p - p % lp.width;
+    let r = i32(lp.radius);
     var mx = vec3<f32>(0.0);
     var mt = vec3<f32>(0.0);
     var mxx = vec3<f32>(0.0);
@@ -226,16 +228,16 @@ fn ssim_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
 // Column pass, the SSIM map and its gradient coefficients at pixel p; returns p's summands
 // of sums A.
 fn ssim_column(p: u32) -> array<vec4<f32>, 2> {
-    let x0 = p % tp.width;
-    let y0 = i32(p / tp.width);
-    let r = i32(tp.radius);
+    let x0 = p % lp.width;
+    let y0 = i32(p / lp.width);
+    let r = i32(lp.radius);
     var mu1 = vec3<f32>(0.0);
     var mu2 = vec3<f32>(0.0);
     var exx = vec3<f32>(0.0);
     var ett = vec3<f32>(0.0);
     var ext = vec3<f32>(0.0);
     for (var t = -r; t <= r; t++) {
-        let q = (reflect(y0 + t, i32(tp.height)) * tp.width + x0) * MOMENTS;
+        let q = (reflect(y0 + t, i32(lp.height)) * lp.width + x0) * MOMENTS;
         let k = tap(t + r);
         mu1 += k * moments[q].xyz;
         mu2 += k * moments[q + 1u].xyz;
@@ -256,7 +258,7 @@ fn ssim_column(p: u32) -> array<vec4<f32>, 2> {
     let s = (a1 * a2) / den;
     // dL/dS of each channel: the map is averaged over channels, weighted, normalised.
     let w = weights[p];
-    let upstream = -tp.lambda_ssim / tp.weight_sum * w / 3.0;
+    let upstream = -lp.lambda_ssim / lp.weight_sum * w / 3.0;
     let base = p * COEFFS;
     coeffs[base] = vec4<f32>(upstream * (2.0 * mu2 * (a2 - a1) + 2.0 * mu1 * s * (b1 - b2))
                              / den, 0.0);
@@ -265,7 +267,7 @@ fn ssim_column(p: u32) -> array<vec4<f32>, 2> {
 
     let x = rendered_rgb(p);
     var temporal = 0.0;
-    if tp.has_previous != 0u {
+    if lp.has_previous != 0u {
         temporal = w * mean3(abs(x - previous_at(p)));
     }
     let c = covered_weight(p);
@@ -349,7 +351,7 @@ fn coefficients(q: u32, columns: bool) -> Adjoint {
 // read index j, where j is i itself and, near a border, the mirror images that reflect onto
 // i: −i (read when 1 ≤ i ≤ r) and 2(n − 1) − i (read when n − 1 − r ≤ i ≤ n − 2).
 fn window_adjoint(i: i32, n: i32, first: u32, stride: u32, columns: bool) -> Adjoint {
-    let r = i32(tp.radius);
+    let r = i32(lp.radius);
     var a = Adjoint(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     for (var image = 0; image < 3; image++) {
         var j = i;
@@ -384,7 +386,7 @@ fn adjoint_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroup
     if p >= pixel_count() {
         return;
     }
-    let a = window_adjoint(i32(p / tp.width), i32(tp.height), p % tp.width, tp.width, true);
+    let a = window_adjoint(i32(p / lp.width), i32(lp.height), p % lp.width, lp.width, true);
     let base = p * COEFFS;
     adjoint[base] = vec4<f32>(a.mu, 0.0);
     adjoint[base + 1u] = vec4<f32>(a.exx, 0.0);
@@ -393,7 +395,7 @@ fn adjoint_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroup
 
 // Whether L_geo applies this step (the coverage rule of loss_at).
 fn geo_active() -> bool {
-    return tp.lambda_geo > 0.0 && totals[SUM_COVERED] > MIN_COVERED;
+    return lp.lambda_geo > 0.0 && totals[SUM_COVERED] > MIN_COVERED;
 }
 
 // Gradient of 1 − Pearson w.r.t. the rendered depth at pixel p (autograd's, including the
@@ -426,23 +428,23 @@ fn pixel_grads(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     if p >= pixel_count() {
         return;
     }
-    let row = p - p % tp.width;
-    let a = window_adjoint(i32(p % tp.width), i32(tp.width), row, 1u, false);
+    let row = p - p % lp.width;
+    let a = window_adjoint(i32(p % lp.width), i32(lp.width), row, 1u, false);
     let x = rendered_rgb(p);
     let t = target_at(p);
     let w = weights[p];
     // x̄ = F̃ᵀ(ḡ ∂S/∂μx) + 2x F̃ᵀ(ḡ ∂S/∂E[x²]) + t F̃ᵀ(ḡ ∂S/∂E[xt]) where the weight is
     // not 0, then the L1 sign.
     var v_rgb = select(a.mu + 2.0 * x * a.exx + t * a.ext, vec3<f32>(0.0), w <= 0.0);
-    v_rgb += tp.lambda_l1 / tp.weight_sum * w / 3.0 * sign(x - t);
-    if tp.has_previous != 0u {
-        v_rgb += tp.lambda_temporal / tp.weight_sum * w / 3.0 * sign(x - previous_at(p));
+    v_rgb += lp.lambda_l1 / lp.weight_sum * w / 3.0 * sign(x - t);
+    if lp.has_previous != 0u {
+        v_rgb += lp.lambda_temporal / lp.weight_sum * w / 3.0 * sign(x - previous_at(p));
     }
     var v_alpha = 0.0;
     var v_depth = 0.0;
     let alpha = pixels[p * PIXEL_CHANNELS + 3u];
     if geo_active() && alpha > MIN_ALPHA_FOR_DEPTH {
-        let g = tp.lambda_geo * pearson_grad(p);
+        let g = lp.lambda_geo * pearson_grad(p);
         v_depth = g / alpha;
         v_alpha = -g * pixels[p * PIXEL_CHANNELS + 4u] / (alpha * alpha);
     }
@@ -458,21 +460,21 @@ fn pixel_grads(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
 // whether L_geo applied (1 or 0)].
 @compute @workgroup_size(1)
 fn loss_value() {
-    let ws = tp.weight_sum;
+    let ws = lp.weight_sum;
     let l1 = totals[SUM_L1] / ws;
     let ssim = 1.0 - totals[SUM_SSIM] / ws;
-    var loss = tp.lambda_l1 * l1 + tp.lambda_ssim * ssim;
+    var loss = lp.lambda_l1 * l1 + lp.lambda_ssim * ssim;
     var temporal = 0.0;
-    if tp.has_previous != 0u {
+    if lp.has_previous != 0u {
         temporal = totals[SUM_TEMPORAL] / ws;
-        loss += tp.lambda_temporal * temporal;
+        loss += lp.lambda_temporal * temporal;
     }
     var pearson = 0.0;
     let geo = geo_active();
     if geo {
         let product = max(totals[SUM_VAR_A] * totals[SUM_VAR_B], MIN_VARIANCE_PRODUCT);
         pearson = 1.0 - totals[SUM_COV] / sqrt(product);
-        loss += tp.lambda_geo * pearson;
+        loss += lp.lambda_geo * pearson;
     }
     loss_out[0] = loss;
     loss_out[1] = l1;

@@ -3,6 +3,7 @@
 // stop before a Gaussian that would take T below 1e-4.
 // Writes rgb + T * background, alpha = 1 - T and D = sum(z * alpha * T) per pixel, and
 // for the backward pass the final T and one past the last contributing intersection.
+// After common.wgsl (RenderParams, Projected, the blending constants, `tile_pixel`).
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> projected: array<Projected>;

@@ -7,6 +7,7 @@
 //   only the background) and an overflow in `status` for the host to see later.
 // `emit_intersections`: for every Gaussian in depth order, one (tile id, Gaussian id) pair
 //   per tile it touches; sorting these stably by tile keeps each tile depth-ordered.
+// After common.wgsl (RenderParams, Projected, `tile_rect`, the dispatch helpers).
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> projected: array<Projected>;
@@ -15,17 +16,18 @@
 @group(0) @binding(4) var<storage, read_write> offsets: array<u32>;
 @group(0) @binding(5) var<storage, read_write> isect_keys: array<u32>;
 @group(0) @binding(6) var<storage, read_write> isect_gaussians: array<u32>;
-// The tile sort's plan (sort.wgsl's SortPlan) followed by the ranges' dispatch size:
+// The tile sort's plan (sort/plan.wgsl's DispatchPlan, as words) followed by the ranges'
+// dispatch size:
 // num_keys, num_blocks, sort groups x y z, ranges groups x y z.
 @group(0) @binding(7) var<storage, read_write> tile_plan: array<u32, 8>;
-// The plan of the scan inside each pass of the tile sort (scan.wgsl's ScanPlan).
+// The plan of the scan inside each pass of the tile sort (a DispatchPlan, as words).
 @group(0) @binding(8) var<storage, read_write> tile_scan_plan: array<u32, 5>;
 // overflowed frames and the largest M so far (both only grow, for frames recorded), then
 // this frame's M and whether it was drawn (1) or overflowed (0).
 @group(0) @binding(9) var<storage, read_write> status: array<u32, 4>;
 
 // Keys per sort block, digit buckets per pass, values per scan block, intersections per
-// ranges workgroup (sort.wgsl, scan.wgsl, ranges.wgsl).
+// ranges workgroup (sort/sort.wgsl, sort/scan.wgsl, ranges.wgsl).
 const SORT_BLOCK: u32 = 1024u;
 const SORT_DIGITS: u32 = 16u;
 const SCAN_BLOCK: u32 = 1024u;

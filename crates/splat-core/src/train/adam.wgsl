@@ -19,8 +19,11 @@
 //
 // The scene holds the frozen context first (`n_context` Gaussians, never updated) and the
 // trained set after it; the scene's SoA sections are `stride` long, the gradients'
-// `grad_len` (= context + trained), the moments' `n_train`.
+// `grad_len` (= context + trained), the moments' `n_train` (gaussian_layout.wgsl's
+// `gaussian_offsets` places each; after common.wgsl for `linear_workgroup`).
 
+// Rust: train/adam.rs's `AdamParams` (the one declaration; the wgsl tests check this one
+// against it).
 struct AdamParams {
     n_context: u32,
     n_train: u32,
@@ -44,7 +47,7 @@ struct AdamParams {
 }
 
 @group(0) @binding(0) var<uniform> ap: AdamParams;
-// The scene, under the name gaussian.wgsl's helpers read.
+// The scene: the context, then the trained set.
 @group(0) @binding(1) var<storage, read_write> gaussians: array<f32>;
 @group(0) @binding(2) var<storage, read> grads: array<f32>;
 @group(0) @binding(3) var<storage, read> grads_extra: array<f32>;
@@ -53,9 +56,6 @@ struct AdamParams {
 @group(0) @binding(6) var<storage, read> unit: array<f32>;
 // Accumulated ‖g_o‖ (first n_train) and count of non-zero ones (next n_train).
 @group(0) @binding(7) var<storage, read_write> stats: array<f32>;
-// gaussian.wgsl's helpers also read the render parameters; Adam uses none of them, so this
-// is declared for them and never bound.
-@group(0) @binding(8) var<uniform> params: RenderParams;
 
 fn gradient(i: u32) -> f32 {
     if ap.has_extra != 0u {

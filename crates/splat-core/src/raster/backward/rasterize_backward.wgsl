@@ -5,7 +5,8 @@
 // invocation per Gaussian adding the tile's totals into that Gaussian's ten sums in
 // `gaussian_grads` (zeroed by the host), which project_backward.wgsl carries to the 3D
 // parameters. Nothing is kept per intersection.
-// Two parts are prepended by the host, by what the device has:
+// After common.wgsl and two parts the host chooses by what the device has
+// (backward/mod.rs, `rasterize_backward_module`):
 // `sum_grads` (the tile sum): a compare-exchange loop on workgroup memory per pixel
 //   (grad_sum_plain.wgsl), or a subgroup sum first so that one invocation per subgroup adds
 //   (grad_sum_subgroup.wgsl);

@@ -1,5 +1,6 @@
 // [start, end) of every tile in the tile-sorted intersection list (cleared to 0 first).
 // Dispatched indirectly with the size `plan_intersections` (tiles.wgsl) wrote.
+// After common.wgsl (`linear_workgroup`).
 
 @group(0) @binding(0) var<storage, read> tile_plan: array<u32, 8>;
 @group(0) @binding(1) var<storage, read> sorted_keys: array<u32>;

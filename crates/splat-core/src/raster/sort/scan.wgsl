@@ -5,17 +5,9 @@
 // within a dispatch, so no forward-progress assumptions.
 // The length comes from a buffer, written by the host or by an earlier kernel (the tile
 // sort's, sized on the GPU), and the block-wise dispatches are indirect from it.
+// After common.wgsl (`linear_workgroup`) and plan.wgsl (`DispatchPlan`).
 
-struct ScanPlan {
-    len: u32,
-    num_blocks: u32,
-    // Workgroups of `scan_blocks` and `add_block_sums` (an indirect dispatch: x, y, 1).
-    groups_x: u32,
-    groups_y: u32,
-    groups_z: u32,
-}
-
-@group(0) @binding(0) var<storage, read> scan_plan: ScanPlan;
+@group(0) @binding(0) var<storage, read> scan_plan: DispatchPlan;
 @group(0) @binding(1) var<storage, read_write> data: array<u32>;
 @group(0) @binding(2) var<storage, read_write> block_sums: array<u32>;
 

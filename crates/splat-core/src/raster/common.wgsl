@@ -1,5 +1,9 @@
-// Shared by every rasteriser shader (prepended by the host before compiling).
+// Shared by every rasteriser kernel (the first part of each module, raster/mod.rs's
+// COMMON_WGSL): the render parameters, the projected Gaussian, constants and the helpers
+// of linear dispatches and tiles.
 
+// Rust: raster/params.rs's `RenderParams` (the one declaration; the wgsl tests check this
+// one against it).
 struct RenderParams {
     // World-to-camera rows; w holds the translation component.
     rot_row0: vec4<f32>,
@@ -22,7 +26,7 @@ struct RenderParams {
     // Room in the per-intersection buffers: a frame with more intersections draws nothing
     // and is recorded as overflowed (tiles.wgsl, `plan_intersections`).
     intersection_capacity: u32,
-    // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a resident scene
+    // Length of each SoA section of the Gaussian buffer (≥ num_gaussians: a GpuScene
     // keeps room for its largest dynamic set).
     gaussian_stride: u32,
     // Added to every log-scale as it is read (the viewer's splat-scale slider; 0 in training).
@@ -30,7 +34,7 @@ struct RenderParams {
     // 1: add an overflow to the running counts the host checks now and then (a training
     // loop's frames); 0: the caller checks this frame itself (one-off renders).
     record_overflow: u32,
-    pad1: u32,
+    pad: u32,
 }
 
 const TILE_SIZE: u32 = 16u;
@@ -44,7 +48,8 @@ const T_MIN: f32 = 1e-4;
 // Pixels outside the 3-sigma ellipse are skipped: power = -0.5 * d^2 < -4.5.
 const POWER_MIN: f32 = -4.5;
 
-// Projected Gaussian, one per input Gaussian (culled ones have radius 0).
+// Projected Gaussian, one per input Gaussian (culled ones have radius 0). Rust:
+// raster/params.rs's `Projected`.
 struct Projected {
     // mean2d.x, mean2d.y, opacity (after the antialiasing factor), camera z
     xy_opacity_z: vec4<f32>,

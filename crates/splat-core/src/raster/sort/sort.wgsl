@@ -8,21 +8,15 @@
 //   the pass is stable without subgroup operations or any assumption about subgroup size.
 // The number of keys comes from a buffer (written by the host, or on the GPU for the tile
 // sort) and both dispatches are indirect from it; only the digit's shift is per pass.
+// After common.wgsl (`linear_workgroup`) and plan.wgsl (`DispatchPlan`).
 
+// Rust: sort/mod.rs's `SortPass` (the one declaration; the wgsl tests check this one
+// against it).
 struct SortPass {
     shift: u32,
     pad0: u32,
     pad1: u32,
     pad2: u32,
-}
-
-struct SortPlan {
-    num_keys: u32,
-    num_blocks: u32,
-    // Workgroups of both dispatches (an indirect dispatch: x, y, 1).
-    groups_x: u32,
-    groups_y: u32,
-    groups_z: u32,
 }
 
 @group(0) @binding(0) var<uniform> sort_pass: SortPass;
@@ -31,7 +25,7 @@ struct SortPlan {
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
-@group(0) @binding(6) var<storage, read> sort_plan: SortPlan;
+@group(0) @binding(6) var<storage, read> sort_plan: DispatchPlan;
 
 const SORT_THREADS: u32 = 256u;
 const SORT_ROUNDS: u32 = 4u;
@@ -58,7 +52,7 @@ fn count_digits(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     if block < sort_plan.num_blocks {
         for (var r = 0u; r < SORT_ROUNDS; r++) {
             let idx = block * SORT_BLOCK + r * SORT_THREADS + lid;
-            if idx < sort_plan.num_keys {
+            if idx < sort_plan.len {
                 atomicAdd(&histogram[digit_of(keys_in[idx])], 1u);
             }
         }
@@ -111,7 +105,7 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     var keys: array<u32, 4>;
     var local_counts = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
     for (var e = 0u; e < SORT_ROUNDS; e++) {
-        if first + e < sort_plan.num_keys {
+        if first + e < sort_plan.len {
             keys[e] = keys_in[first + e];
             let hot = one_hot(digit_of(keys[e]));
             local_counts[0] += hot[0];
@@ -136,7 +130,7 @@ fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     // Exclusive prefix per digit = inclusive - own counts; then rank within the thread.
     var seen = array<vec4<u32>, 2>(flags_lo[lid] - local_counts[0], flags_hi[lid] - local_counts[1]);
     for (var e = 0u; e < SORT_ROUNDS; e++) {
-        if first + e < sort_plan.num_keys {
+        if first + e < sort_plan.len {
             let digit = digit_of(keys[e]);
             let dst = digit_base[digit] + counter(seen, digit);
             keys_out[dst] = keys[e];

@@ -1,6 +1,7 @@
 // Stage 1: project every Gaussian (EWA splatting), evaluate its SH colour, count the
 // 16x16 tiles it touches and emit its depth sort key.
-// Gaussian inputs are one f32 buffer in SoA sections (see `gaussian_offsets`).
+// Gaussian inputs are one f32 buffer in SoA sections (see `gaussian_offsets`), bound as
+// the `params` and `gaussians` gaussian.wgsl reads.
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> gaussians: array<f32>;

@@ -1,5 +1,6 @@
 // The forward's pixels (r, g, b, alpha, depth per pixel, background blended in) as an
 // RGBA8 texture the viewer shows directly: the image never leaves the GPU.
+// After common.wgsl (RenderParams).
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> pixels: array<f32>;

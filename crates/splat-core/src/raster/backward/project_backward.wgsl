@@ -1,6 +1,8 @@
 // Backward of project.wgsl: carries each Gaussian's 2D gradients (summed over its tiles
 // by rasterize_backward.wgsl) to the 3D parameters (mean, log-scale, quaternion, opacity
 // logit, SH), in the same SoA layout as the input. Culled Gaussians get zeros.
+// After common.wgsl, gaussian_layout.wgsl and gaussian.wgsl; binds the `params` and
+// `gaussians` gaussian.wgsl reads.
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read> gaussians: array<f32>;
