@@ -117,9 +117,11 @@ class OptimisationKnobs(BaseModel):
     # higher degrees take lr_color / 20, as in 3DGS
 
 
-class PresetKnobs(OptimisationKnobs):
-    """The lifting phase's knobs: a preset's values with scene.yaml's ``overrides`` applied
-    (``SceneConfig.resolved_preset``)."""
+class StageKnobs(BaseModel):
+    """What the lifting stages are sized by: the views, the initial Gaussians, the steps,
+    the budget and the colour's degree (what the presets differ in, with densify)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
     view_size: int  # pixels per side of each perspective view
     init_stride: int  # working-panorama pixels between initial Gaussians
@@ -127,6 +129,11 @@ class PresetKnobs(OptimisationKnobs):
     gaussian_iterations: int  # optimisation steps per timestamp
     max_gaussians: int  # the budget: static plus one timestamp's dynamic set
     sh_degree: int  # spherical-harmonics degree of the Gaussians' colour
+
+
+class PresetKnobs(OptimisationKnobs, StageKnobs):
+    """The lifting phase's knobs: a preset's values with scene.yaml's ``overrides`` applied
+    (``SceneConfig.resolved_preset``); the stages' first, then the optimisation's."""
 
 
 def _absolute(value: Path, info: ValidationInfo) -> Path:
