@@ -31,7 +31,6 @@ Adam moments, the view generator, the step), so a resumed run continues bit-for-
 
 from __future__ import annotations
 
-import inspect
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
@@ -51,7 +50,7 @@ SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iteratio
 PRUNE_OPACITY = 0.005
 SPLIT_FACTOR = 1.6
 ADAM_EPS = 1e-15  # 3DGS's
-ADAM_BETAS: tuple[float, float] = inspect.signature(torch.optim.Adam).parameters["betas"].default
+ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, what 3DGS trains with
 SH_REST_LR_DIVISOR = 20  # the higher SH degrees learn 20× slower than degree 0 (3DGS)
 
 
