@@ -179,7 +179,7 @@ if [ $vulkan_parts -eq 1 ]; then
         if [ -x "$VIEWER_BENCH" ]; then
             adapter=$("$VIEWER_BENCH" --adapter 2>&1 | grep -v XDG_RUNTIME_DIR | tail -1)
         elif [ $python_parts -eq 1 ] && [ ${#missing[@]} -eq 0 ]; then
-            adapter=$("$PY" -c 'from pano4d.render import adapter_info as a; i = a()
+            adapter=$("$PY" -c 'from pano4d.renderer import adapter_info as a; i = a()
 print("%s (%s, %s)" % (i["name"], i["backend"], i["device_type"]))' 2>&1 | tail -1)
         fi
         case "$adapter" in

@@ -65,7 +65,7 @@ def depth_absrel(output: Path, gt_depth: np.ndarray, cameras: list) -> dict[str,
 
 def flicker(scene: ply4d.Scene4D, frames: list[np.ndarray], mask: np.ndarray, backend: str) -> dict:
     """Mean absolute change between consecutive timestamps in the layout views."""
-    from pano4d.render import render
+    from pano4d.renderer import render
 
     cams = view_layout(20, 80.0, 96)[::5]
     still, moving, truth = [], [], []
@@ -126,7 +126,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
     if args.maps:
         from quality_maps import analyse
 
-        from pano4d.render import render
+        from pano4d.renderer import render
 
         maps = analyse(
             root, output, int(metrics["working_size"][0]),

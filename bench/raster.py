@@ -83,7 +83,7 @@ def time_call(fn, repeats: int, warm_up: bool = True) -> float:
 def frame_fns(g, cam, backend: str):
     import torch
 
-    from pano4d.render import render
+    from pano4d.renderer import render
 
     def forward() -> None:
         with torch.no_grad():
@@ -107,7 +107,8 @@ def worker(job: dict) -> dict:
     import numpy as np
 
     from pano4d.camera import Camera
-    from pano4d.render import _core, adapter_info
+    from pano4d.extension import core
+    from pano4d.renderer import adapter_info
 
     g = scene(job["n"], job["sh_degree"])
     cam = Camera.from_fov(90.0, job["width"], job["height"], (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
@@ -117,7 +118,7 @@ def worker(job: dict) -> dict:
     try:
         # The intersection count, through the extension (pano4d.render does not show it).
         arrays = [np.ascontiguousarray(t.reshape(-1).numpy()) for t in g.tensors().values()]
-        _, result["intersections"] = _core().render_forward(
+        _, result["intersections"] = core().render_forward(
             *arrays, cam.K.numpy(), cam.world_to_cam[:3].numpy(), cam.width, cam.height,
             (0.0, 0.0, 0.0), False)
         _, fb = frame_fns(g, cam, "wgpu")
@@ -206,7 +207,7 @@ def wgpu_vs_torch(args: argparse.Namespace) -> None:
     import torch
 
     from pano4d.camera import Camera
-    from pano4d.render import adapter_info
+    from pano4d.renderer import adapter_info
 
     counts = [10_000, 100_000] if args.quick else [10_000, 100_000, 1_000_000]
     sizes = [(512, 512)] if args.quick else [(512, 512), (1024, 1024), (2048, 1024)]

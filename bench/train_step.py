@@ -55,6 +55,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
+from pano4d import extension
 from pano4d.camera import Camera
 from pano4d.config import PRESETS
 from pano4d.gaussians import Gaussians
@@ -62,7 +63,7 @@ from pano4d.lift.initial import init_gaussians, init_sphere
 from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ResidentTrainer
-from pano4d.render import RenderOutput, _core, adapter_info, render
+from pano4d.renderer import RenderOutput, adapter_info, render
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 from pano4d.synth.landscape import Landscape
@@ -102,7 +103,7 @@ def wgpu_render(g: Gaussians, camera: Camera, background: Any = None) -> RenderO
 def counted_bindings() -> Iterator[list[int]]:
     """Counts the bytes of every array passed to or returned by the rasteriser's bindings."""
     total = [0]
-    core = _core()
+    core = extension.core()
     originals = {name: getattr(core, name) for name in ("render_forward", "render_backward")}
 
     def size(value: Any) -> int:
@@ -142,7 +143,7 @@ def time_steps(trainer: Any, steps: int, finish: Callable[[], Any]) -> float:
 
 
 def resident_row(g: Gaussians, views: TrainViews, knobs: Knobs, steps: int) -> dict[str, Any]:
-    trainer = ResidentTrainer(g, views, knobs, wgpu_render)
+    trainer = ResidentTrainer(g, views, knobs)
     session = trainer._session
     before = session.traffic()
     seconds = time_steps(trainer, steps, session.loss)
@@ -159,7 +160,7 @@ def semantic_row(
     """The resident loop with L_sem on every step (past 54 % of the iterations)."""
     sem = Knobs(iterations=knobs.iterations, lambda_geo=knobs.lambda_geo, lambda_sem=0.01,
                 sem_scale=10.0)  # fmt: skip
-    trainer = ResidentTrainer(g, views, sem, wgpu_render, features=features)
+    trainer = ResidentTrainer(g, views, sem, features=features)
     trainer.step = sem.iterations // 2 + sem.iterations // 10  # L_sem's schedule has begun
     session = trainer._session
     before = session.traffic()

@@ -292,3 +292,12 @@ def test_box_click_and_mask_regions_to_masks(tmp_path: Path) -> None:
     blank = config.Region.model_validate({"mask": "m.png"}, context={"base_dir": tmp_path})
     with pytest.raises(ConfigError, match="no white pixels"):
         region_mask(blank, 512, 256)
+
+
+def test_the_template_names_every_knob() -> None:
+    """templates/scene.yaml documents the knobs `overrides:` takes: each one is named there."""
+    from pano4d.config import TEMPLATE_PATH, PresetKnobs
+
+    text = TEMPLATE_PATH.read_text(encoding="utf-8")
+    missing = [name for name in PresetKnobs.model_fields if name not in text]
+    assert not missing, f"templates/scene.yaml does not name the knobs {missing}"

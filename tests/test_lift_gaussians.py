@@ -31,7 +31,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _render(g: Gaussians, camera, background=None):  # type: ignore[no-untyped-def]
-    from pano4d.render import render
+    from pano4d.renderer import render
 
     return render(g, camera, background=background, backend="torch")
 

@@ -16,7 +16,7 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.render import adapter_info, render
+from pano4d.renderer import adapter_info, render
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 TOL = 1e-4
@@ -338,7 +338,7 @@ import sys
 import torch
 sys.path.insert(0, sys.argv[1])
 from test_render import gradients
-from pano4d.render import adapter_info
+from pano4d.renderer import adapter_info
 args = torch.load(sys.argv[2], weights_only=False)
 torch.save((adapter_info(), gradients(*args["args"], **args["kw"])), sys.argv[3])
 """
@@ -561,7 +561,7 @@ def test_adapter_info_names_the_adapter() -> None:
 def test_adapter_preference_that_matches_nothing_is_a_clear_error() -> None:
     # The renderer is process-wide, so the preference is tried in a fresh process.
     code = (
-        "from pano4d.render import adapter_info\n"
+        "from pano4d.renderer import adapter_info\n"
         "try:\n    adapter_info()\nexcept RuntimeError as e:\n    print(e)\n"
     )
     env = {**os.environ, "PANO4D_ADAPTER": "no-such-adapter"}

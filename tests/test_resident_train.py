@@ -16,21 +16,20 @@ import torch
 from sphere_problem import sphere_problem
 
 from pano4d.camera import Camera
+from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import (
-    ADAM_EPS,
-    LEARNING_RATES,
-    RGB_L1,
-    RGB_SSIM,
     GaussianTrainer,
     Knobs,
     TrainViews,
+    learning_rates,
     split_and_prune,
     ssim_loss,
 )
+from pano4d.lift.pipeline import make_trainer
 from pano4d.lift.random_dinov2 import random_feature_model
-from pano4d.lift.resident import ADAM_BETAS, GROUPS, ResidentTrainer, pack, unpack
-from pano4d.render import MIN_ALPHA_FOR_DEPTH, RenderOutput, _core, render
+from pano4d.lift.resident import ResidentTrainer, pack, train_settings, unpack
+from pano4d.renderer import MIN_ALPHA_FOR_DEPTH, RenderOutput, render
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -39,8 +38,9 @@ def _render(g: Gaussians, camera: Camera, background: Any = None) -> RenderOutpu
     return render(g, camera, background=background, backend="wgpu")
 
 
-def _flat(t: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(t.detach().to(torch.float32).reshape(-1).numpy())
+# The default knobs' L_rgb mix: (1 − λ_dssim) L1 + λ_dssim D-SSIM.
+DSSIM = Knobs(iterations=1).lambda_dssim
+L1 = 1 - DSSIM
 
 
 # --- the loss kernels against torch autograd -------------------------------------------------
@@ -76,7 +76,8 @@ def _loss_case(h: int, w: int, seed: int, covered: float) -> tuple[TrainViews, t
 
 
 def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> Any:
-    """A TrainSession of one dummy Gaussian on ``views`` (its render is never used)."""
+    """A TrainSession of one dummy Gaussian on ``views`` (its render is never used), with
+    the weights of L1, D-SSIM, L_temporal and L_geo set apart (no Knobs sets them so)."""
     g = Gaussians(
         torch.tensor([[0.0, 0.0, 5.0]]),
         torch.zeros(1, 3),
@@ -86,16 +87,22 @@ def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> A
     )
     targets = []
     for i, c in enumerate(views.cameras):
-        previous = None if views.previous is None else _flat(views.previous[i])
+        previous = None if views.previous is None else flat(views.previous[i])
         targets.append((
-            np.ascontiguousarray(c.K.numpy()), np.ascontiguousarray(c.world_to_cam[:3].numpy()),
-            c.width, c.height, _flat(views.targets[i]), _flat(views.weights[i]),
-            _flat(views.depth[i]), previous, float(views.weights[i].sum().clamp(min=1e-6)),
+            *camera_arrays(c), c.width, c.height, flat(views.targets[i]), flat(views.weights[i]),
+            flat(views.depth[i]), previous, float(views.weights[i].sum().clamp(min=1e-6)),
         ))  # fmt: skip
-    return _core().TrainSession(
-        pack(Gaussians.empty(0)), 0, pack(g), np.ones(1, np.float32), targets,
-        [LEARNING_RATES[k] for k in GROUPS], ADAM_BETAS, ADAM_EPS, lambdas, [0.0, 0.0, 0.0],
+    defaults = train_settings(Knobs(iterations=1))
+    l1, ssim, temporal, geo = lambdas
+    settings = core().TrainSettings(
+        learning_rates=defaults.learning_rates, betas=defaults.betas, eps=defaults.eps,
+        lambda_l1=l1, lambda_ssim=ssim, lambda_temporal=temporal, lambda_geo=geo,
+        background=defaults.background,
     )  # fmt: skip
+    return core().TrainSession(
+        pack(Gaussians.empty(0)), 0, pack(g), np.ones(1, np.float32), targets, settings
+    )
+
 
 
 def _torch_gradient(views: TrainViews, pixels: torch.Tensor, knobs: Knobs) -> torch.Tensor:
@@ -111,7 +118,7 @@ def _device_gradient(
     views: TrainViews, pixels: torch.Tensor, lambdas: tuple[float, float, float, float]
 ) -> tuple[torch.Tensor, list[float]]:
     session = _session(views, lambdas)
-    grad, parts = session.loss_gradient(0, _flat(pixels))
+    grad, parts = session.loss_gradient(0, flat(pixels))
     return torch.from_numpy(grad).reshape(pixels.shape), parts
 
 
@@ -135,13 +142,13 @@ def test_each_loss_terms_pixel_gradient_matches_torch_autograd(size: tuple[int, 
     rgb_only = Knobs(iterations=1)
     reference_rgb = _torch_gradient(views, pixels, rgb_only)
     p = pixels[..., :3].clone().requires_grad_(True)
-    (RGB_SSIM * ssim_loss(p, views.targets[0], views.weights[0])).backward()
+    (DSSIM * ssim_loss(p, views.targets[0], views.weights[0])).backward()
     assert p.grad is not None
     reference_ssim = torch.zeros_like(pixels)
     reference_ssim[..., :3] = p.grad
     cases = {
-        "ssim": ((0.0, RGB_SSIM, 0.0, 0.0), reference_ssim),
-        "l1": ((RGB_L1, 0.0, 0.0, 0.0), reference_rgb - reference_ssim),
+        "ssim": ((0.0, DSSIM, 0.0, 0.0), reference_ssim),
+        "l1": ((L1, 0.0, 0.0, 0.0), reference_rgb - reference_ssim),
         "temporal": (
             (0.0, 0.0, 0.1, 0.0),
             _torch_gradient(views, pixels, Knobs(iterations=1, lambda_temporal=0.1))
@@ -159,7 +166,7 @@ def test_each_loss_terms_pixel_gradient_matches_torch_autograd(size: tuple[int, 
     assert float(geo[..., 3:].abs().max()) > 0 and float(geo[..., :3].abs().max()) == 0
     # Every term together, with its loss value.
     knobs = Knobs(iterations=1, lambda_temporal=0.1, lambda_geo=0.05)
-    device, parts = _device_gradient(views, pixels, (RGB_L1, RGB_SSIM, 0.1, 0.05))
+    device, parts = _device_gradient(views, pixels, (L1, DSSIM, 0.1, 0.05))
     _assert_close(device, _torch_gradient(views, pixels, knobs), "all terms")
     out = _output(pixels)
     trainer = GaussianTrainer(Gaussians.empty(0), views, knobs, lambda *_: out)
@@ -174,7 +181,7 @@ def test_geo_loss_follows_the_coverage_rule() -> None:
     covered = float((views.weights[0] * (pixels[..., 3] > 0.5)).sum())
     assert 0 < covered <= 16
     knobs = Knobs(iterations=1, lambda_geo=0.05)
-    device, parts = _device_gradient(views, pixels, (RGB_L1, RGB_SSIM, 0.0, 0.05))
+    device, parts = _device_gradient(views, pixels, (L1, DSSIM, 0.0, 0.05))
     reference = _torch_gradient(views, pixels, knobs)
     assert parts[6] == 0.0 and parts[5] == pytest.approx(covered)
     assert float(device[..., 3:].abs().max()) == 0.0 == float(reference[..., 3:].abs().max())
@@ -208,7 +215,7 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
     views = TrainViews([cam], torch.rand(1, 16, 16, 3), ones, ones)
     knobs = Knobs(iterations=5)
     reference = GaussianTrainer(trained, views, knobs, _render, context=context)
-    resident = ResidentTrainer(trained, views, knobs, _render, context=context)
+    resident = ResidentTrainer(trained, views, knobs, context=context)
     n_all = len(context) + len(trained)
     norms = torch.zeros(len(trained))
     for step in range(5):
@@ -232,7 +239,7 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
         torch.testing.assert_close(got, want, rtol=4 * ulp, atol=4 * ulp * float(want.abs().max()))
     for key, torch_key in (("exp_avg", "exp_avg"), ("exp_avg_sq", "exp_avg_sq")):
         moments = state[key]
-        for group in GROUPS:
+        for group in reference.params:
             want = reference.optimiser.state[reference.params[group]][torch_key]
             got = {
                 "offsets": moments.means,
@@ -292,14 +299,14 @@ def test_resident_trainer_follows_the_torch_trainer_for_k_steps() -> None:
     g, views = _problem()
     knobs = Knobs(iterations=STEPS, lambda_temporal=0.1, lambda_geo=0.05)
     expected = GaussianTrainer(g, views, knobs, _render, seed=3).run()
-    resident = ResidentTrainer(g, views, knobs, _render, seed=3)
+    resident = ResidentTrainer(g, views, knobs, seed=3)
     got = resident.run()
     assert resident.step == STEPS and math.isfinite(resident.last_loss)
     unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
-    lr = {"means": LEARNING_RATES["offsets"] * float(unit.max()),
-          "log_scales": LEARNING_RATES["log_scales"], "quats": LEARNING_RATES["quats"],
-          "opacity_logits": LEARNING_RATES["opacity_logits"],
-          "sh": LEARNING_RATES["sh_dc"]}  # fmt: skip
+    rates = learning_rates(knobs)
+    lr = {"means": rates["offsets"] * float(unit.max()), "log_scales": rates["log_scales"],
+          "quats": rates["quats"], "opacity_logits": rates["opacity_logits"],
+          "sh": rates["sh_dc"]}  # fmt: skip
     for name, start in g.tensors().items():
         a, b = got.tensors()[name], expected.tensors()[name]
         moved = float((b - start).norm())
@@ -318,12 +325,12 @@ def test_resident_trainer_resumes_across_a_densification() -> None:
     g, views = _problem()
     knobs = Knobs(iterations=12, lambda_geo=0.05, densify=True, densify_every=4,
                   max_gaussians=len(g) + 10)  # fmt: skip
-    expected = ResidentTrainer(g, views, knobs, _render, seed=3).run()
-    first = ResidentTrainer(g, views, knobs, _render, seed=3)
+    expected = ResidentTrainer(g, views, knobs, seed=3).run()
+    first = ResidentTrainer(g, views, knobs, seed=3)
     for _ in range(7):
         first.train_step()
     state = first.state_dict()
-    resumed = ResidentTrainer(g, views, knobs, _render, seed=3)
+    resumed = ResidentTrainer(g, views, knobs, seed=3)
     resumed.load_state_dict(state)
     assert resumed.step == 7
     got = resumed.run()
@@ -356,8 +363,8 @@ def _statistics(trainer: Any) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]
     return trainer.unit, trainer.grad_accum, trainer.grad_count
 
 
-@pytest.mark.parametrize("trainer_class", [ResidentTrainer, GaussianTrainer])
-def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_class: Any) -> None:
+@pytest.mark.parametrize("kind", ["resident", "torch"])
+def test_densification_keeps_the_invariants_and_carries_the_moments(kind: str) -> None:
     """One densify-and-prune after 3 steps, in both trainers: the shared decision
     (split_and_prune) is applied exactly, transparent Gaussians go, the count stays within
     the budget, nothing is NaN, survivors keep their Adam moments and split children start
@@ -366,7 +373,7 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_clas
     context, trainable = g[: len(g) // 2], g[len(g) // 2 :].map(torch.clone)
     trainable.opacity_logits[:3] = -20.0  # transparent: pruned
     knobs = Knobs(iterations=10, lambda_geo=0.05, max_gaussians=len(trainable) + 4)
-    trainer = trainer_class(trainable, views, knobs, _render, context=context, seed=0)
+    trainer = make_trainer(kind, trainable, views, knobs, _render, context=context, seed=0)
     for _ in range(3):
         trainer.train_step()
     before, moments = trainer.result(), _moments(trainer)
@@ -406,7 +413,8 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(trainer_clas
     for name, t in kept.tensors().items():
         assert torch.equal(t, context.tensors()[name]), name
     # And densification inside the loop (every 2 steps from 20 % to 70 %).
-    knobs.densify, knobs.densify_every = True, 2
+    knobs = knobs.model_copy(update={"densify": True, "densify_every": 2})
+    trainer.knobs = knobs
     trainer.run()
     assert len(trainer.result()) <= knobs.max_gaussians and math.isfinite(trainer.last_loss)
 
@@ -420,9 +428,9 @@ def test_semantic_loss_on_the_resident_path_follows_the_torch_trainer(tmp_path: 
     g, views = _problem()
     knobs = Knobs(iterations=8, lambda_sem=1.0, sem_scale=4.0)
     expected = GaussianTrainer(g, views, knobs, _render, features=features, seed=1).run()
-    resident = ResidentTrainer(g, views, knobs, _render, features=features, seed=1)
+    resident = ResidentTrainer(g, views, knobs, features=features, seed=1)
     got = resident.run()
-    plain = ResidentTrainer(g, views, knobs, _render, seed=1).run()
+    plain = ResidentTrainer(g, views, knobs, seed=1).run()
     assert math.isfinite(resident.last_loss)
     for name, start in g.tensors().items():
         a, b = got.tensors()[name], expected.tensors()[name]
@@ -436,7 +444,7 @@ def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
     floats) and the renderer's frame check (4 words) are read back at most once every 10
     steps: the session's traffic counter says so."""
     g, views = _problem()
-    trainer = ResidentTrainer(g, views, Knobs(iterations=100, lambda_geo=0.05), _render)
+    trainer = ResidentTrainer(g, views, Knobs(iterations=100, lambda_geo=0.05))
     start = trainer._session.traffic()
     steps = 20
     for _ in range(steps):
@@ -445,6 +453,45 @@ def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
     assert 0 < uploaded <= 128 * steps
     assert 0 < read_back <= 2 * (7 * 4 + 4 * 4)  # two loss reads, two frame checks
     assert math.isfinite(trainer.last_loss)
+
+
+# --- the knobs' way to the device -------------------------------------------------------------
+def test_scene_yaml_overrides_reach_the_device_session(tmp_path: Any) -> None:
+    """A knob set in scene.yaml's ``overrides:`` goes scene.yaml → load_config →
+    resolved_preset → trainer_knobs → make_trainer → TrainSettings → the Rust TrainConfig:
+    the session's own settings, read back from it, carry the overridden λ_geo, λ_dssim and
+    learning rates (f32 on the device), and the knobs left alone keep the preset's values."""
+    from pano4d.config import PRESETS, load_config
+    from pano4d.images import write_image
+    from pano4d.lift.pipeline import trainer_knobs
+
+    write_image(tmp_path / "pano.png", np.zeros((256, 512, 3), np.float32))
+    (tmp_path / "scene.yaml").write_text(
+        "panorama: pano.png\nregions:\n  - box: [10, 20, 110, 60]\npreset: draft\n"
+        "overrides: {lambda_geo: 0.3, lambda_dssim: 0.25, lr_position: 0.004, lr_color: 0.02}\n"
+    )
+    knobs = load_config(tmp_path / "scene.yaml").resolved_preset()
+    g, views = _problem()
+    trainer = make_trainer(
+        "resident", g, views, trainer_knobs(knobs, 3, 10_000, 2.0), _render, seed=0
+    )
+    got = trainer._session.settings
+    f32 = np.float32
+    assert got.lambda_geo == f32(0.3) and got.lambda_ssim == f32(0.25)
+    assert got.lambda_l1 == f32(1 - 0.25)
+    assert got.lambda_temporal == f32(PRESETS["draft"]["lambda_temporal"])
+    assert got.learning_rates["offsets"] == 0.004
+    assert got.learning_rates["sh_dc"] == 0.02 and got.learning_rates["sh_rest"] == 0.02 / 20
+    assert got.learning_rates["quats"] == Knobs(iterations=1).lr_rotation  # left alone
+    assert got.betas == pytest.approx((0.9, 0.999)) and got.eps == 1e-15
+    with pytest.raises(ValueError, match="missing"):
+        core().TrainSettings(**{**_settings_kwargs(got), "learning_rates": {"offsets": 1.0}})
+
+
+def _settings_kwargs(settings: Any) -> dict[str, Any]:
+    names = ("learning_rates", "betas", "eps", "lambda_l1", "lambda_ssim", "lambda_temporal",
+             "lambda_geo", "background")  # fmt: skip
+    return {name: getattr(settings, name) for name in names}
 
 
 # --- the pipeline's default --------------------------------------------------------------------

@@ -12,10 +12,9 @@ from typing import Any
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 
-# `pano4d.render` is the function (docs/design.md's API), not the module of the same name:
-# binding it here, after the submodule import, keeps it so. The Rust extension itself is
-# loaded on first use.
-from pano4d.render import render
+# `pano4d.render` is the function (docs/design.md's API); its module is pano4d.renderer.
+# The Rust extension itself is loaded on first use (pano4d.extension).
+from pano4d.renderer import render
 
 __version__ = "0.1.0"
 __all__ = ["Camera", "Gaussians", "ply4d", "render", "sphere", "synth"]

@@ -15,7 +15,7 @@ from pano4d import images, ply4d
 from pano4d.camera import Camera
 from pano4d.errors import InputError
 from pano4d.gaussians import Gaussians
-from pano4d.render import render
+from pano4d.renderer import render
 
 DEFAULT_FOV_DEG = 90.0
 

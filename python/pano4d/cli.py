@@ -217,7 +217,7 @@ def export(
 def info() -> None:
     """Show the version and the GPU adapter the rasteriser uses (PANO4D_ADAPTER forces one)."""
     import pano4d
-    from pano4d.render import adapter_info
+    from pano4d.renderer import adapter_info
 
     console.print(f"pano4d {pano4d.__version__}")
     try:

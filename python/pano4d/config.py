@@ -34,8 +34,8 @@ from pano4d.fsutil import write_text_atomic
 PathLike = str | os.PathLike[str]
 TEMPLATE_PATH = Path(__file__).parent / "templates" / "scene.yaml"
 
-# Knobs of the lifting stage per quality preset (their types and meaning: PresetKnobs).
-# draft must finish in minutes on a CPU.
+# The lifting phase's knobs per quality preset (their types, meaning and the defaults every
+# preset shares: PresetKnobs). draft must finish in minutes on a CPU.
 PRESETS: dict[str, dict[str, int | float | bool]] = {
     "draft": {
         "view_size": 128,
@@ -88,9 +88,38 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
 
-class PresetKnobs(BaseModel):
-    """The lifting phase's knobs: a preset's values with scene.yaml's ``overrides`` applied
-    (``SceneConfig.resolved_preset``)."""
+class OptimisationKnobs(BaseModel):
+    """How Gaussians are optimised: the loss weights, densification and the learning rates.
+
+    The one definition of these knobs: a preset's (``PresetKnobs``) and each optimisation's
+    (``lift.optimize.Knobs``, what both trainers read and the resident one hands to the GPU
+    as ``pano4d._core.TrainSettings``) extend it. A default is the term switched off, or the
+    value every preset uses; the learning rates are knobs because they are the first thing
+    to tune when a scene under- or over-fits in its steps (3DGS exposes the same ones).
+    """
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    # L = L_rgb + λ_temporal L_temporal + λ_geo L_geo + λ_sem L_sem,
+    # L_rgb = (1 − λ_dssim) L1 + λ_dssim (1 − SSIM)
+    lambda_temporal: float = 0.0  # weight of L_temporal
+    lambda_geo: float = 0.0  # weight of L_geo
+    lambda_sem: float = 0.0  # weight of L_sem (with a feature backend)
+    lambda_dssim: float = 0.2  # the D-SSIM share of L_rgb (3DGS's)
+    densify: bool = False  # split and prune during optimisation
+    # Adam's learning rates; positions move as offsets in units of each Gaussian's initial
+    # depth, so one rate fits a Gaussian at 2 m and one at 1000 m.
+    lr_position: float = 1e-3
+    lr_scale: float = 5e-3  # of the log-scales
+    lr_rotation: float = 1e-3  # of the quaternions
+    lr_opacity: float = 5e-2  # of the opacity logits
+    lr_color: float = 1e-2  # SH degree 0 (4× 3DGS: our runs are hundreds of steps); the
+    # higher degrees take lr_color / 20, as in 3DGS
+
+
+class StageKnobs(BaseModel):
+    """What the lifting stages are sized by: the views, the initial Gaussians, the steps,
+    the budget and the colour's degree (what the presets differ in, with densify)."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
@@ -100,10 +129,11 @@ class PresetKnobs(BaseModel):
     gaussian_iterations: int  # optimisation steps per timestamp
     max_gaussians: int  # the budget: static plus one timestamp's dynamic set
     sh_degree: int  # spherical-harmonics degree of the Gaussians' colour
-    densify: bool  # split and prune during optimisation
-    lambda_temporal: float  # weight of L_temporal
-    lambda_geo: float  # weight of L_geo
-    lambda_sem: float  # weight of L_sem (with a feature backend)
+
+
+class PresetKnobs(OptimisationKnobs, StageKnobs):
+    """The lifting phase's knobs: a preset's values with scene.yaml's ``overrides`` applied
+    (``SceneConfig.resolved_preset``); the stages' first, then the optimisation's."""
 
 
 def _absolute(value: Path, info: ValidationInfo) -> Path:
@@ -337,8 +367,10 @@ class SceneConfig(_Section):
         time and only resample the same pixels."""
         knobs = dict(PRESETS[self.preset])
         for key, value in self.overrides.items():
-            if key not in knobs:
-                raise ConfigError(f"unknown override '{key}'{_suggest(key, knobs)}")
+            if key not in PresetKnobs.model_fields:
+                raise ConfigError(
+                    f"unknown override '{key}'{_suggest(key, PresetKnobs.model_fields)}"
+                )
             knobs[key] = value
         if panorama_width is not None:
             from pano4d.sphere import matched_view_size

@@ -205,10 +205,3 @@ def sphere_to_equirect(
     """Icosphere samples (..., N) → equirect (..., H, W)."""
     s = sphere_sampler(equirect_directions(width, height, torch.float64), ico)
     return s.to(values.device).apply(values)
-
-
-def sphere_to_perspective(values: torch.Tensor, ico: Icosphere, camera: Camera) -> torch.Tensor:
-    """Icosphere samples (..., N) → the camera's view (..., h, w)."""
-    return (
-        sphere_sampler(camera.world_directions(torch.float64), ico).to(values.device).apply(values)
-    )

@@ -1,12 +1,17 @@
 """Per-timestamp Gaussian optimisation (4K4DGen, lifting phase).
 
-    L = λ_rgb L_rgb + λ_temporal L_temporal + λ_sem L_sem + λ_geo L_geo
-    L_rgb      = 0.8 L1 + 0.2 (1 − SSIM)                      (kornia SSIM, 11×11 window)
+    L = L_rgb + λ_temporal L_temporal + λ_sem L_sem + λ_geo L_geo
+    L_rgb      = (1 − λ_dssim) L1 + λ_dssim (1 − SSIM)        (kornia SSIM, 11×11 window)
     L_temporal = L1 between the render of G_t and that of G_{t−1} in the same view
     L_geo      = 1 − Pearson(rendered depth, Θ's depth)
     L_sem      = 1 − cos(CLS(render at the view), CLS(render at the view moved by δ)),
                  δ ∈ [−α, α]³ × median scene depth, α = 0.05 / 0.1 / 0.2 from 54 / 66 / 90 %
                  of the iterations; only with a feature backend (DINOv2).
+
+The λ, densification and the learning rates are knobs (``Knobs``, whose shared part
+``config.OptimisationKnobs`` documents them); Adam's β and ε, the SSIM window, the L_sem
+schedule and the densification's thresholds are constants here: numerical or the papers'
+choices, not something a scene needs changed.
 
 Each step renders one view drawn from a seeded generator. Gaussians can be trained against a
 frozen context (the static set while a timestamp's dynamic set trains): the context is
@@ -36,24 +41,17 @@ import torch
 import torch.nn.functional as F
 
 from pano4d.camera import Camera
+from pano4d.config import OptimisationKnobs
 from pano4d.gaussians import Gaussians
 from pano4d.lift.diagnosis import DensifyStats
 
-LAMBDA_RGB = 1.0
-RGB_L1, RGB_SSIM = 0.8, 0.2  # L_rgb's mix
 SSIM_WINDOW = 11
 SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iterations, α)
 PRUNE_OPACITY = 0.005
 SPLIT_FACTOR = 1.6
-ADAM_EPS = 1e-15
-LEARNING_RATES = {
-    "offsets": 1e-3,  # in units of each Gaussian's initial depth
-    "log_scales": 5e-3,
-    "quats": 1e-3,
-    "opacity_logits": 5e-2,
-    "sh_dc": 1e-2,  # 4× 3DGS: our runs are hundreds of steps, not 30 000
-    "sh_rest": 1e-2 / 20,
-}
+ADAM_EPS = 1e-15  # 3DGS's
+ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, what 3DGS trains with
+SH_REST_LR_DIVISOR = 20  # the higher SH degrees learn 20× slower than degree 0 (3DGS)
 
 
 class RenderFn(Protocol):
@@ -80,16 +78,27 @@ class TrainViews:
     previous: torch.Tensor | None = None
 
 
-@dataclass
-class Knobs:
+class Knobs(OptimisationKnobs):
+    """One optimisation's knobs: the preset's optimisation knobs (the λ, densify, the
+    learning rates) and this run's own (``pipeline.trainer_knobs`` makes them per stage)."""
+
     iterations: int
-    lambda_temporal: float = 0.0
-    lambda_geo: float = 0.0
-    lambda_sem: float = 0.0
-    densify: bool = False
-    max_gaussians: int = 1_000_000
+    max_gaussians: int = 1_000_000  # this set's budget
     densify_every: int = 100
     sem_scale: float = 1.0  # world units of δ = 1 (median scene depth)
+
+
+def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
+    """Adam's learning rate per parameter group (the groups of GaussianTrainer.params and of
+    the resident trainer's TrainSettings)."""
+    return {
+        "offsets": knobs.lr_position,
+        "log_scales": knobs.lr_scale,
+        "quats": knobs.lr_rotation,
+        "opacity_logits": knobs.lr_opacity,
+        "sh_dc": knobs.lr_color,
+        "sh_rest": knobs.lr_color / SH_REST_LR_DIVISOR,
+    }
 
 
 def ssim_loss(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -228,14 +237,14 @@ def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
 class Trainer(ABC):
     """What both trainers share (``GaussianTrainer`` here, ``ResidentTrainer`` in
     lift.resident): their inputs, the step count, the seeded generator that draws each
-    step's view, and the loop; a lifting stage can use either."""
+    step's view, and the loop; a lifting stage can use either (``pipeline.make_trainer``).
+    Only the torch trainer takes a ``render_fn``: the resident one renders on the device."""
 
     def __init__(
         self,
         gaussians: Gaussians,
         views: TrainViews,
         knobs: Knobs,
-        render_fn: RenderFn,
         context: Gaussians | None = None,
         features: FeatureModel | None = None,
         seed: int = 0,
@@ -245,8 +254,7 @@ class Trainer(ABC):
             raise ValueError(f"iterations must be ≥ 0, got {knobs.iterations}")
         if len(views.cameras) == 0:
             raise ValueError("no views to train on")
-        self.views, self.knobs = views, knobs
-        self.render_fn, self.features = render_fn, features
+        self.views, self.knobs, self.features = views, knobs, features
         self.context = context.detach() if context is not None else None
         self.background = background
         self.device = gaussians.device
@@ -294,7 +302,22 @@ class Trainer(ABC):
 
 
 class GaussianTrainer(Trainer):
-    """Optimises one set of Gaussians (optionally against a frozen context) in torch."""
+    """Optimises one set of Gaussians (optionally against a frozen context) in torch,
+    rendering with ``render_fn`` (any differentiable rasteriser)."""
+
+    def __init__(
+        self,
+        gaussians: Gaussians,
+        views: TrainViews,
+        knobs: Knobs,
+        render_fn: RenderFn,
+        context: Gaussians | None = None,
+        features: FeatureModel | None = None,
+        seed: int = 0,
+        background: torch.Tensor | None = None,
+    ) -> None:
+        self.render_fn = render_fn
+        super().__init__(gaussians, views, knobs, context, features, seed, background)
 
     def _start(self, gaussians: Gaussians) -> None:
         self._set_parameters(gaussians)
@@ -318,8 +341,10 @@ class GaussianTrainer(Trainer):
         }
         for p in self.params.values():
             p.requires_grad_(True)
+        rates = learning_rates(self.knobs)
         self.optimiser = torch.optim.Adam(
-            [{"params": [p], "lr": LEARNING_RATES[k], "name": k} for k, p in self.params.items()],
+            [{"params": [p], "lr": rates[k], "name": k} for k, p in self.params.items()],
+            betas=ADAM_BETAS,
             eps=ADAM_EPS,
         )
         self.grad_accum = torch.zeros(len(g), device=self.device)
@@ -353,7 +378,7 @@ class GaussianTrainer(Trainer):
         wsum = weight.sum().clamp(min=1e-6)
         l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
         d_ssim = ssim_loss(rgb, target, weight)
-        loss = LAMBDA_RGB * (RGB_L1 * l1 + RGB_SSIM * d_ssim)
+        loss = (1 - k.lambda_dssim) * l1 + k.lambda_dssim * d_ssim
         terms = {"l1": l1, "d_ssim": d_ssim}
         if k.lambda_temporal > 0 and v.previous is not None:
             temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum

@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 
 from pano4d.camera import Camera
-from pano4d.config import PresetKnobs, SceneConfig
+from pano4d.config import OptimisationKnobs, PresetKnobs, SceneConfig
 from pano4d.device import resolve_device
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image
@@ -101,7 +101,7 @@ class LiftInputs:
     trainer: str  # a key of TRAINERS
 
     def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
-        from pano4d.render import render
+        from pano4d.renderer import render
 
         return render(g, camera, background=background, backend=self.render_backend)
 
@@ -292,11 +292,17 @@ def make_trainer(
     seed: int = 0,
 ) -> Trainer:
     """The optimiser of one set of Gaussians: the one place the stages build one. ``kind`` is
-    a key of TRAINERS; both trainers take the same arguments and views (same seed, same
-    views in the same order)."""
-    return TRAINERS[kind](
-        gaussians, views, knobs, render, context=context, features=features, seed=seed
-    )
+    a key of TRAINERS; both trainers see the same views in the same order (same seed).
+    ``render`` is the torch trainer's rasteriser; the resident one renders on the device."""
+    if kind == "torch":
+        return GaussianTrainer(
+            gaussians, views, knobs, render, context=context, features=features, seed=seed
+        )
+    if kind == "resident":
+        return ResidentTrainer(
+            gaussians, views, knobs, context=context, features=features, seed=seed
+        )
+    raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {kind!r}")
 
 
 def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> None:
@@ -314,12 +320,11 @@ def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> No
 
 
 def trainer_knobs(knobs: PresetKnobs, iterations: int, budget: int, median_depth: float) -> Knobs:
+    """One stage's optimisation knobs: the preset's optimisation knobs as they are, and this
+    stage's steps, budget, densification interval and L_sem scale."""
     return Knobs(
+        **{name: getattr(knobs, name) for name in OptimisationKnobs.model_fields},
         iterations=iterations,
-        lambda_temporal=knobs.lambda_temporal,
-        lambda_geo=knobs.lambda_geo,
-        lambda_sem=knobs.lambda_sem,
-        densify=knobs.densify,
         max_gaussians=max(1, budget),
         densify_every=max(10, iterations // 10),
         sem_scale=median_depth,

@@ -15,43 +15,51 @@ centre render and the moved render are read back, the feature model runs in torc
 moved render's pixel gradient is uploaded and back-propagated on the device. It runs on every
 step (``sem_every = 1``, as the torch trainer) unless ``sem_every`` is raised.
 
-``ResidentTrainer`` has ``GaussianTrainer``'s constructor and public methods, so a lifting
-stage can use either; ``render_fn`` is accepted for that and not called (renders happen on the
-device). ``train_step`` returns the last loss read back, which is up to ``LOSS_EVERY − 1``
-steps old.
+``ResidentTrainer`` has ``GaussianTrainer``'s constructor less ``render_fn`` (renders
+happen on the device) and its public methods, so a lifting stage can use either. Its knobs
+reach the device as one typed object, ``pano4d._core.TrainSettings`` (``train_settings``).
+``train_step`` returns the last loss read back, which is up to ``LOSS_EVERY − 1`` steps old.
 """
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pano4d.camera import Camera
+from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import (
+    ADAM_BETAS,
     ADAM_EPS,
-    LAMBDA_RGB,
-    LEARNING_RATES,
-    RGB_L1,
-    RGB_SSIM,
+    Knobs,
     Trainer,
     densify_due,
+    learning_rates,
     moved_camera,
     sem_alpha,
     split_and_prune,
 )
-from pano4d.render import _core
 
 LOSS_EVERY = 10  # steps between loss read-backs (the progress bar's figure)
-# Learning-rate groups in TrainSession's order (means are trained as offsets in units of
-# each Gaussian's initial depth, as GaussianTrainer does).
-GROUPS = ("offsets", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-# GaussianTrainer uses torch.optim.Adam's default betas.
-ADAM_BETAS = tuple(inspect.signature(torch.optim.Adam).parameters["betas"].default)
+
+
+def train_settings(knobs: Knobs, background: tuple[float, ...] = (0.0, 0.0, 0.0)) -> Any:
+    """What the device's loop needs of ``knobs``, as ``pano4d._core.TrainSettings`` (the Rust
+    ``TrainConfig``): learning rates per group, Adam's β and ε, the weights of L1, D-SSIM,
+    L_temporal and L_geo (L_sem runs on the host) and the background."""
+    return core().TrainSettings(
+        learning_rates=learning_rates(knobs),
+        betas=ADAM_BETAS,
+        eps=ADAM_EPS,
+        lambda_l1=1 - knobs.lambda_dssim,
+        lambda_ssim=knobs.lambda_dssim,
+        lambda_temporal=knobs.lambda_temporal,
+        lambda_geo=knobs.lambda_geo,
+        background=background,
+    )
 
 
 def pack(g: Gaussians) -> np.ndarray:
@@ -63,26 +71,15 @@ def pack(g: Gaussians) -> np.ndarray:
 
 def unpack(packed: np.ndarray, n: int, sh_coeffs: int, device: torch.device) -> Gaussians:
     """Inverse of :func:`pack` for ``n`` Gaussians with ``sh_coeffs`` per channel."""
-    flat = torch.from_numpy(np.asarray(packed, dtype=np.float32)).to(device)
+    values = torch.from_numpy(np.asarray(packed, dtype=np.float32)).to(device)
     sizes = [3 * n, 3 * n, 4 * n, n, 3 * sh_coeffs * n]
-    means, log_scales, quats, opacity, sh = flat.split(sizes)
+    means, log_scales, quats, opacity, sh = values.split(sizes)
     return Gaussians(
         means.reshape(n, 3),
         log_scales.reshape(n, 3),
         quats.reshape(n, 4),
         opacity.reshape(n),
         sh.reshape(n, sh_coeffs, 3),
-    )
-
-
-def _flat(t: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
-
-
-def _camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    return (
-        np.ascontiguousarray(camera.K.numpy()),
-        np.ascontiguousarray(camera.world_to_cam[:3].numpy()),
     )
 
 
@@ -104,22 +101,13 @@ class ResidentTrainer(Trainer):
         ctx = ctx.with_sh_degree(g.sh_degree)
         bg = torch.zeros(3) if self.background is None else torch.as_tensor(self.background)
         unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
-        self._session = _core().TrainSession(
+        self._session = core().TrainSession(
             pack(ctx),
             len(ctx),
             pack(g),
-            _flat(unit),
+            flat(unit),
             self._view_targets(),
-            [LEARNING_RATES[name] for name in GROUPS],
-            ADAM_BETAS,
-            ADAM_EPS,
-            (
-                LAMBDA_RGB * RGB_L1,
-                LAMBDA_RGB * RGB_SSIM,
-                self.knobs.lambda_temporal,
-                self.knobs.lambda_geo,
-            ),
-            [float(v) for v in bg.reshape(-1)],
+            train_settings(self.knobs, tuple(float(v) for v in bg.reshape(-1))),
         )
         self._session.reserve_frames()
 
@@ -131,13 +119,13 @@ class ResidentTrainer(Trainer):
             weight = v.weights[i]
             out.append(
                 (
-                    *_camera_args(camera),
+                    *camera_arrays(camera),
                     camera.width,
                     camera.height,
-                    _flat(v.targets[i]),
-                    _flat(weight),
-                    _flat(v.depth[i]) if k.lambda_geo > 0 else None,
-                    _flat(v.previous[i]) if temporal and v.previous is not None else None,
+                    flat(v.targets[i]),
+                    flat(weight),
+                    flat(v.depth[i]) if k.lambda_geo > 0 else None,
+                    flat(v.previous[i]) if temporal and v.previous is not None else None,
                     float(weight.sum().clamp(min=1e-6)),
                 )
             )
@@ -196,7 +184,7 @@ class ResidentTrainer(Trainer):
         centre = torch.from_numpy(s.read_render()).reshape(h, w, 5)[..., :3].to(self.device)
         delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
         moved = moved_camera(camera, delta * alpha * k.sem_scale)
-        pixels = torch.from_numpy(s.render_at(*_camera_args(moved))).reshape(h, w, 5)
+        pixels = torch.from_numpy(s.render_at(*camera_arrays(moved))).reshape(h, w, 5)
         moved_rgb = pixels[..., :3].to(self.device).requires_grad_(True)
         loss = k.lambda_sem * (
             1 - F.cosine_similarity(self.features.cls(centre), self.features.cls(moved_rgb), dim=0)
@@ -205,7 +193,7 @@ class ResidentTrainer(Trainer):
         assert moved_rgb.grad is not None
         v_pixels = torch.zeros(h, w, 5)
         v_pixels[..., :3] = moved_rgb.grad.cpu()
-        s.backward_at(_flat(v_pixels))
+        s.backward_at(flat(v_pixels))
         s.apply_adam()
         return float(loss.detach())
 
@@ -233,11 +221,11 @@ class ResidentTrainer(Trainer):
     ) -> None:
         self._session.set_trained(
             pack(g),
-            _flat(unit),
+            flat(unit),
             None if exp_avg is None else pack(exp_avg),
             None if exp_avg_sq is None else pack(exp_avg_sq),
-            None if grad_accum is None else _flat(grad_accum),
-            None if grad_count is None else _flat(grad_count),
+            None if grad_accum is None else flat(grad_accum),
+            None if grad_count is None else flat(grad_count),
             adam_steps,
         )
         self._session.reserve_frames()

@@ -3,7 +3,11 @@
 //!
 //! Gaussian sets cross as one packed float32 array each, in the shaders' SoA order (means,
 //! log-scales, quaternions, opacity logits, SH), with their count; so do the Adam moments.
-//! Every call runs on the process-wide renderer (python/raster.rs) with the GIL released.
+//! The session's knobs cross as one `TrainSettings` (the Rust [`TrainConfig`]), built by
+//! keyword. Every call runs on the process-wide renderer (python/raster.rs) with the GIL
+//! released.
+
+use std::collections::BTreeMap;
 
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
@@ -16,6 +20,143 @@ use crate::raster::RenderSettings;
 use crate::train::{
     AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput, ViewTargets, GROUPS,
 };
+
+/// The learning-rate groups by name, in [`crate::train::AdamConfig::learning_rates`]' order
+/// (GaussianTrainer's parameter groups: means trained as offsets in units of each
+/// Gaussian's initial depth).
+const GROUP_NAMES: [&str; GROUPS] = [
+    "offsets",
+    "log_scales",
+    "quats",
+    "opacity_logits",
+    "sh_dc",
+    "sh_rest",
+];
+
+/// What a training session is configured with: Adam's learning rates (by group name), β
+/// and ε, the weights of the device's losses and the background. Built by keyword only, read
+/// back by name (`TrainSession.settings` returns the session's own).
+#[pyclass(name = "TrainSettings", module = "pano4d._core", frozen)]
+#[derive(Clone)]
+pub struct PyTrainSettings {
+    config: TrainConfig,
+}
+
+#[pymethods]
+impl PyTrainSettings {
+    /// `learning_rates`: {group: rate} for exactly the groups offsets, log_scales, quats,
+    /// opacity_logits, sh_dc, sh_rest; `lambda_l1`, `lambda_ssim`, `lambda_temporal`,
+    /// `lambda_geo`: the weights of L1, D-SSIM, L_temporal and L_geo.
+    #[new]
+    #[pyo3(signature = (*, learning_rates, betas, eps, lambda_l1, lambda_ssim, lambda_temporal, lambda_geo, background))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        learning_rates: BTreeMap<String, f64>,
+        betas: (f64, f64),
+        eps: f64,
+        lambda_l1: f32,
+        lambda_ssim: f32,
+        lambda_temporal: f32,
+        lambda_geo: f32,
+        background: [f32; 3],
+    ) -> PyResult<Self> {
+        let unknown: Vec<&str> = learning_rates
+            .keys()
+            .map(String::as_str)
+            .filter(|name| !GROUP_NAMES.contains(name))
+            .collect();
+        let missing: Vec<&str> = GROUP_NAMES
+            .into_iter()
+            .filter(|name| !learning_rates.contains_key(*name))
+            .collect();
+        if !unknown.is_empty() || !missing.is_empty() {
+            return Err(PyValueError::new_err(format!(
+                "learning_rates needs exactly the groups {GROUP_NAMES:?}: unknown {unknown:?}, \
+                 missing {missing:?}"
+            )));
+        }
+        Ok(Self {
+            config: TrainConfig {
+                adam: AdamConfig {
+                    learning_rates: GROUP_NAMES.map(|name| learning_rates[name]),
+                    beta1: betas.0,
+                    beta2: betas.1,
+                    eps,
+                },
+                losses: LossWeights {
+                    l1: lambda_l1,
+                    ssim: lambda_ssim,
+                    temporal: lambda_temporal,
+                    geo: lambda_geo,
+                },
+                settings: RenderSettings {
+                    background,
+                    ..Default::default()
+                },
+            },
+        })
+    }
+
+    #[getter]
+    fn learning_rates(&self) -> BTreeMap<&'static str, f64> {
+        GROUP_NAMES
+            .into_iter()
+            .zip(self.config.adam.learning_rates)
+            .collect()
+    }
+
+    #[getter]
+    fn betas(&self) -> (f64, f64) {
+        (self.config.adam.beta1, self.config.adam.beta2)
+    }
+
+    #[getter]
+    fn eps(&self) -> f64 {
+        self.config.adam.eps
+    }
+
+    #[getter]
+    fn lambda_l1(&self) -> f32 {
+        self.config.losses.l1
+    }
+
+    #[getter]
+    fn lambda_ssim(&self) -> f32 {
+        self.config.losses.ssim
+    }
+
+    #[getter]
+    fn lambda_temporal(&self) -> f32 {
+        self.config.losses.temporal
+    }
+
+    #[getter]
+    fn lambda_geo(&self) -> f32 {
+        self.config.losses.geo
+    }
+
+    #[getter]
+    fn background(&self) -> [f32; 3] {
+        self.config.settings.background
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.config;
+        format!(
+            "TrainSettings(learning_rates={:?}, betas=({}, {}), eps={}, lambda_l1={}, \
+             lambda_ssim={}, lambda_temporal={}, lambda_geo={}, background={:?})",
+            self.learning_rates(),
+            c.adam.beta1,
+            c.adam.beta2,
+            c.adam.eps,
+            c.losses.l1,
+            c.losses.ssim,
+            c.losses.temporal,
+            c.losses.geo,
+            c.settings.background
+        )
+    }
+}
 
 /// A packed SoA array of `n` Gaussians as a [`SceneInput`].
 fn unpack<'a>(name: &str, packed: &'a [f32], n: usize) -> PyResult<SceneInput<'a>> {
@@ -87,12 +228,8 @@ pub struct PyTrainSession {
 impl PyTrainSession {
     /// `context`/`trained`: packed Gaussians (see the module docs); `unit`: each trained
     /// Gaussian's offset unit; `views`: (K, world_to_cam, width, height, rgb, weight,
-    /// depth or None, previous or None, weight_sum) tuples; `learning_rates`: the six
-    /// groups' (means as offsets, log-scales, quats, opacity logits, SH DC, SH rest);
-    /// `lambdas`: the weights of L1, D-SSIM, L_temporal, L_geo.
+    /// depth or None, previous or None, weight_sum) tuples; `settings`: a TrainSettings.
     #[new]
-    #[pyo3(signature = (context, context_len, trained, unit, views, learning_rates, betas, eps, lambdas, background))]
-    #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         context: PyReadonlyArray1<'_, f32>,
@@ -100,11 +237,7 @@ impl PyTrainSession {
         trained: PyReadonlyArray1<'_, f32>,
         unit: PyReadonlyArray1<'_, f32>,
         views: Vec<PyView<'_>>,
-        learning_rates: [f64; GROUPS],
-        betas: (f64, f64),
-        eps: f64,
-        lambdas: (f32, f32, f32, f32),
-        background: [f32; 3],
+        settings: PyRef<'_, PyTrainSettings>,
     ) -> PyResult<Self> {
         let unit = slice("unit", &unit)?;
         let context = unpack("context", slice("context", &context)?, context_len)?;
@@ -120,24 +253,7 @@ impl PyTrainSession {
                 weight_sum: *weight_sum,
             });
         }
-        let config = TrainConfig {
-            adam: AdamConfig {
-                learning_rates,
-                beta1: betas.0,
-                beta2: betas.1,
-                eps,
-            },
-            losses: LossWeights {
-                l1: lambdas.0,
-                ssim: lambdas.1,
-                temporal: lambdas.2,
-                geo: lambdas.3,
-            },
-            settings: RenderSettings {
-                background,
-                ..Default::default()
-            },
-        };
+        let config = settings.config;
         let trained = TrainedInput {
             gaussians,
             unit,
@@ -151,6 +267,14 @@ impl PyTrainSession {
             .detach(|| with_renderer(|r| TrainSession::new(r, context, trained, &targets, config)))
             .map_err(to_py)?;
         Ok(Self { inner })
+    }
+
+    /// The settings the session runs with, as the device has them (f32 weights).
+    #[getter]
+    fn settings(&self) -> PyTrainSettings {
+        PyTrainSettings {
+            config: self.inner.config(),
+        }
     }
 
     /// One step (forward, losses, backward, Adam) on view `view`; waits for nothing.
@@ -329,6 +453,7 @@ impl PyTrainSession {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyTrainSettings>()?;
     m.add_class::<PyTrainSession>()?;
     Ok(())
 }

@@ -290,6 +290,11 @@ impl TrainSession {
         Ok(())
     }
 
+    /// What the session was configured with.
+    pub fn config(&self) -> TrainConfig {
+        self.config
+    }
+
     /// Host↔device bytes the session has moved so far, the frame checks of
     /// [`Self::check_frames`] included. The renderer's own upload of its per-frame
     /// parameters comes on top (its size is counted by the benchmark).

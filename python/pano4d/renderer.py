@@ -1,4 +1,5 @@
-"""``render``: Gaussians + camera → rgb, alpha, expected depth (docs/design.md, public API).
+"""``render``: Gaussians + camera → rgb, alpha, expected depth (docs/design.md, public API,
+exported as ``pano4d.render``; this module is ``pano4d.renderer`` so the two names differ).
 
 ``backend="wgpu"`` runs the Rust compute rasteriser (``pano4d._core``) as a
 ``torch.autograd.Function``: inputs go to the host as float32, the outputs come back on
@@ -10,14 +11,13 @@ reference (``pano4d.raster_torch``); both follow docs/rasterizer.md.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import torch
 
 from pano4d.camera import Camera
+from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
 from pano4d.raster_torch import render_torch
 
@@ -33,36 +33,9 @@ class RenderOutput:
     depth: torch.Tensor  # (H, W) expected z-depth, 0 where nothing was drawn
 
 
-def _core() -> Any:
-    # Mesa's device-select Vulkan layer only reorders adapters (we choose our own) and,
-    # without a desktop session, prints "XDG_RUNTIME_DIR is invalid" on every start.
-    os.environ.setdefault("NODEVICE_SELECT", "1")
-    try:
-        from pano4d import _core
-    except ImportError as e:  # pragma: no cover - depends on the build
-        raise ImportError(
-            "pano4d._core (the Rust extension) is not built: run `maturin develop --release` "
-            "or `make setup`; backend='torch' works without it"
-        ) from e
-    return _core
-
-
 def adapter_info() -> dict[str, str]:
     """The GPU adapter the wgpu backend uses: name, backend, device_type, driver."""
-    return dict(_core().adapter_info())
-
-
-def _flat(t: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
-
-
-def _camera_args(camera: Camera) -> tuple[np.ndarray, np.ndarray, int, int]:
-    return (
-        np.ascontiguousarray(camera.K.numpy()),
-        np.ascontiguousarray(camera.world_to_cam[:3].numpy()),
-        camera.width,
-        camera.height,
-    )
+    return dict(core().adapter_info())
 
 
 class _WgpuRasterize(torch.autograd.Function):
@@ -81,9 +54,9 @@ class _WgpuRasterize(torch.autograd.Function):
         sh: torch.Tensor,
     ) -> torch.Tensor:
         tensors = (means, log_scales, quats, opacity_logits, sh)
-        arrays = [_flat(t) for t in tensors]
-        pixels, _ = _core().render_forward(
-            *arrays, *_camera_args(camera), background, antialiased
+        arrays = [flat(t) for t in tensors]
+        pixels, _ = core().render_forward(
+            *arrays, *camera_arrays(camera), camera.width, camera.height, background, antialiased
         )
         ctx.camera, ctx.background, ctx.antialiased = camera, background, antialiased
         ctx.save_for_backward(*tensors)
@@ -93,12 +66,14 @@ class _WgpuRasterize(torch.autograd.Function):
     @staticmethod
     def backward(ctx: Any, v_out: torch.Tensor) -> tuple[torch.Tensor | None, ...]:  # type: ignore[override]
         tensors = ctx.saved_tensors
-        grads = _core().render_backward(
-            *[_flat(t) for t in tensors],
-            *_camera_args(ctx.camera),
+        grads = core().render_backward(
+            *[flat(t) for t in tensors],
+            *camera_arrays(ctx.camera),
+            ctx.camera.width,
+            ctx.camera.height,
             ctx.background,
             ctx.antialiased,
-            _flat(v_out),
+            flat(v_out),
         )
         names = ("means", "log_scales", "quats", "opacity_logits", "sh")
         out = [
