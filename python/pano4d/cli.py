@@ -139,10 +139,19 @@ def check(
 
 
 def synth_height(width: int, height: int | None) -> int:
-    """The height of a synthetic panorama (default width / 2); refuses all but 2:1."""
+    """The height of a synthetic panorama (default width / 2); refuses all but 2:1, and a
+    panorama smaller than what ``pano4d train`` reads."""
+    from pano4d.images import PANORAMA_MIN_HEIGHT, PANORAMA_MIN_WIDTH, below_panorama_minimum
+
     height = height if height is not None else width // 2
     if width != 2 * height:
         fail(f"--width must be twice --height for an equirect panorama, got {width}x{height}")
+    if below_panorama_minimum(width, height):
+        fail(
+            f"--width {width}: a {width}x{height} panorama is smaller than the "
+            f"{PANORAMA_MIN_WIDTH}x{PANORAMA_MIN_HEIGHT} that pano4d train reads; "
+            f"use --width {PANORAMA_MIN_WIDTH} or more"
+        )
     return height
 
 
