@@ -199,11 +199,11 @@ def splice_regions(text: str, regions: list[dict[str, Any]], base_dir: Path) -> 
     """``text`` (a scene.yaml) with its ``regions`` list made ``regions``.
 
     Every byte outside the list's span is kept: comments before its first item and after
-    its last, and the rest of the file. In a block list, a region that did not change
-    (``same_region``; relative mask paths against ``base_dir``) keeps its text byte for byte
-    with its comments, a changed one keeps the comment lines just above it, and only the
-    changed, added and removed regions' lines change (``_item_edits`` pairs them). A flow or
-    empty list (``regions: []``) becomes a block list; a missing key is appended.
+    its last, and the rest of the file. In a block list, a region that did not change (the
+    same ``region_key``; relative mask paths against ``base_dir``) keeps its text byte for
+    byte with its comments, a changed one keeps the comment lines just above it, and only
+    the changed, added and removed regions' lines change (``_item_edits`` pairs them). A
+    flow or empty list (``regions: []``) becomes a block list; a missing key is appended.
     """
     newline = "\r\n" if "\r\n" in text else "\n"
     root = yaml.compose(text, Loader=yaml.SafeLoader)
