@@ -117,7 +117,8 @@ def test_batch_trains_each_scene_as_train_would_and_reports_the_broken_one(
     error = scenes["c"]["error"]
     assert "\n" not in error and "panorama.png" in error and "cannot read" in error, error
     assert "Traceback" in Path(scenes["c"]["log"]).read_text()
-    assert "failed" in result.output and "cannot read this image" in result.output
+    output = _unwrapped(result.output)  # a long path moves where rich wraps the line
+    assert "failed" in output and "cannot read this image" in output
     for name in ("a", "b"):
         out, alone = root / name / "output", first_run["alone"][name]
         assert (out / "scene.ply4d").read_bytes() == (alone / "scene.ply4d").read_bytes(), name
