@@ -137,6 +137,10 @@ CASES: list[Case] = [
      ["--width must be twice --height", "600x256"]),
     ("demo-odd", nothing, ["demo", "{s}/new", "--width", "1023"],
      ["--width must be twice --height", "1023x511"]),
+    ("synth-small", nothing, ["synth", "{s}/new", "--width", "256"],
+     ["--width 256", "256x128 panorama is smaller than the 512x256 that pano4d train reads"]),
+    ("demo-small", nothing, ["demo", "{s}/new", "--width", "510"],
+     ["--width 510", "510x255", "512x256"]),
     ("batch-missing", nothing, ["batch", "{s}/nope.yaml", "--report", "{s}/batch.json"],
      ["nope.yaml not found"]),
 ]  # fmt: skip

@@ -120,23 +120,71 @@ def test_invalid_regions_write_nothing_and_name_the_key(scene: Path) -> None:
     ]  # fmt: skip
 
 
+# What `pano4d synth` writes, with a hand-made second region: the comments on its lines
+# are what a whole-list rewrite used to drop.
+SYNTH_LIKE = """\
+panorama: pano.png
+regions:
+  - mask: mask.png          # white = moves (water, clouds)
+    motion: {direction_deg: 0, speed: 0.25}  # cloud drift, degrees of arc per frame
+
+  # the flag, by hand
+  - name: flag
+    box: [10, 20, 110, 60]  # pole to tip
+  - click: [300, 100]
+    size: 32   # a small one
+seed: 7
+"""
+
+
+def test_save_keeps_the_text_of_every_region_it_does_not_change(scene: Path) -> None:
+    painted_mask(scene.parent, "mask.png")
+    scene.write_text(SYNTH_LIKE)
+    # What the viewer sends back for these regions: numbers as floats, motion spelled out.
+    shown = [
+        {"mask": "mask.png", "motion": {"direction_deg": 0.0, "speed": 0.25}},
+        {"name": "flag", "box": [10.0, 20.0, 110.0, 60.0]},
+        {"click": [300.0, 100.0], "size": 32},
+    ]
+    region_edit.save_regions(scene, shown)
+    assert scene.read_text() == SYNTH_LIKE, "nothing changed, nothing rewritten"
+
+    region_edit.save_regions(scene, [*shown, {"name": "sky", "box": [0, 0, 512, 30]}])
+    added = scene.read_text()
+    assert added == SYNTH_LIKE.replace(
+        "seed: 7", "  - name: sky\n    box: [0, 0, 512, 30]\nseed: 7"
+    ), "the old regions byte for byte, comments included; the new one after them"
+
+    scene.write_text(SYNTH_LIKE)
+    moved = {"name": "flag", "box": [12, 20, 110, 60]}
+    region_edit.save_regions(scene, [shown[0], moved, shown[2]])
+    assert scene.read_text() == SYNTH_LIKE.replace(
+        "    box: [10, 20, 110, 60]  # pole to tip", "    box: [12, 20, 110, 60]"
+    ), "only the changed region's lines; the comment above it and the others stay"
+    assert load_config(scene).regions[1].box == [12, 20, 110, 60]
+
+
 @pytest.mark.parametrize(
     ("text", "kept"),
     [
         ("panorama: pano.png\nregions: []  # none yet\nseed: 1\n", ["  # none yet\n", "seed: 1\n"]),
         ("panorama: pano.png\nregions:\nseed: 1\n", ["seed: 1\n"]),
         ("panorama: pano.png\n", ["panorama: pano.png\n"]),
-        ("panorama: pano.png\nregions: [{box: [1, 2, 3, 4]},\n  {click: [1, 2]}]  # two\n",
-         ["  # two\n"]),
-        ("panorama: pano.png\r\nregions:\r\n- box: [1, 2, 3, 4]\r\n# after\r\nseed: 3\r\n",
-         ["\r\n# after\r\nseed: 3\r\n"]),
+        (
+            "panorama: pano.png\nregions: [{box: [1, 2, 3, 4]},\n  {click: [1, 2]}]  # two\n",
+            ["  # two\n"],
+        ),
+        (
+            "panorama: pano.png\r\nregions:\r\n- box: [1, 2, 3, 4]\r\n# after\r\nseed: 3\r\n",
+            ["\r\n# after\r\nseed: 3\r\n"],
+        ),
     ],
 )
 def test_splice_handles_every_form_of_the_regions_key(
     scene: Path, text: str, kept: list[str]
 ) -> None:
     regions = [{"name": "a", "box": [5, 6, 7, 8]}, {"click": [9, 10], "motion": {"speed": 1.0}}]
-    spliced = region_edit.splice_regions(text, regions)
+    spliced = region_edit.splice_regions(text, regions, scene.parent)
     for part in kept:
         assert part in spliced
     scene.write_text(spliced)

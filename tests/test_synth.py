@@ -284,3 +284,35 @@ def test_written_folder(scene: synth.SynthScene, tmp_path: Path) -> None:
     assert yaml_path.read_text().startswith(f"# Synthetic {scene.kind} ")
     with pytest.raises(ValueError, match="seed"):
         synth.write_scene(out, scene, SEED + 1)
+
+
+def test_synth_writes_only_what_train_reads(tmp_path: Path) -> None:
+    """`pano4d synth` and the panorama reader of `pano4d train` share one minimum size:
+    synth refuses a panorama one pixel pair below it before writing anything, and the
+    reader refuses that size and reads the minimum."""
+    from typer.testing import CliRunner
+
+    from pano4d.cli import app
+    from pano4d.images import (
+        PANORAMA_MIN_HEIGHT,
+        PANORAMA_MIN_WIDTH,
+        ImageError,
+        read_panorama,
+        write_image,
+    )
+
+    below = PANORAMA_MIN_WIDTH - 2
+    args = ["--width", str(below), "--frames", "2", "--views", "1"]
+    small = CliRunner().invoke(app, ["synth", str(tmp_path / "small"), *args])
+    assert small.exit_code == 2, small.output
+    expected = f"smaller than the {PANORAMA_MIN_WIDTH}x{PANORAMA_MIN_HEIGHT} that pano4d train"
+    assert expected in " ".join(small.output.split())
+    assert not (tmp_path / "small").exists()
+    for width, readable in ((below, False), (PANORAMA_MIN_WIDTH, True)):
+        path = tmp_path / f"{width}.png"
+        write_image(path, torch.rand(width // 2, width, 3).numpy())
+        if readable:
+            assert read_panorama(path).shape == (width // 2, width, 3)
+        else:
+            with pytest.raises(ImageError, match="smaller than the minimum"):
+                read_panorama(path)

@@ -174,7 +174,7 @@ def test_thin_lines_fade_to_their_mean_instead_of_aliasing() -> None:
 def test_synth_command_writes_a_room(tmp_path: Path) -> None:
     runner = CliRunner()
     out = tmp_path / "room"
-    args = ["synth", str(out), "--kind", "room", "--width", "128", "--frames", "2", "--views", "1"]
+    args = ["synth", str(out), "--kind", "room", "--width", "512", "--frames", "2", "--views", "1"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     text = (out / "scene.yaml").read_text()

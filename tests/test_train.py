@@ -128,3 +128,34 @@ def test_without_ground_truth_the_contact_sheet_uses_views_of_the_moving_region(
     metrics = run_train(cfg, progress=False, render_backend="torch")
     assert metrics["novel_views"] is None
     assert (output / "contact.png").stat().st_size > 0
+
+
+def test_the_train_command_ends_with_a_summary_table(scene_dir: Path, tmp_path: Path) -> None:
+    """`pano4d train` ends with a few rows (times, Gaussians, novel views, where the files
+    are), not metrics.json printed raw."""
+    from typer.testing import CliRunner
+
+    from pano4d.cli import app
+
+    text = (scene_dir / "scene.yaml").read_text()
+    for name in ("panorama.png", "mask.png"):
+        text = text.replace(f": {name}", f": {scene_dir / name}")
+    output = tmp_path / "out"
+    knobs = ", ".join(f"{k}: {v}" for k, v in TINY.items())
+    text = text.replace("output: output", f"output: {output}") + f"overrides: {{{knobs}}}\n"
+    (tmp_path / "scene.yaml").write_text(text)
+    shutil.copytree(scene_dir / "gt" / "frames", output / "animate" / "frames")
+    result = CliRunner().invoke(app, ["train", str(tmp_path / "scene.yaml"), "--backend", "torch"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((output / "metrics.json").read_text())
+    rows = {}
+    for line in result.output.splitlines():
+        what, _, value = line.strip().partition("  ")
+        rows[what] = value.strip()
+    assert rows["time"].startswith(f"{sum(metrics['timings_s'].values()):.1f}s (animate ")
+    assert rows["Gaussians"].startswith(f"{metrics['gaussians']['stored']:,} stored")
+    one = metrics["novel_views"]["by_displacement"]["1%"]
+    assert rows["novel views"].startswith(f"{one['psnr']:.1f} dB PSNR, SSIM {one['ssim']:.3f}")
+    assert rows["output"] == str(output)
+    assert rows["files"] == "scene.ply4d, preview.mp4, contact.png, loss.png, metrics.json"
+    assert '"config_hash"' not in result.output and '"timings_s"' not in result.output

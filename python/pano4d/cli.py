@@ -139,10 +139,19 @@ def check(
 
 
 def synth_height(width: int, height: int | None) -> int:
-    """The height of a synthetic panorama (default width / 2); refuses all but 2:1."""
+    """The height of a synthetic panorama (default width / 2); refuses all but 2:1, and a
+    panorama smaller than what ``pano4d train`` reads."""
+    from pano4d.images import PANORAMA_MIN_HEIGHT, PANORAMA_MIN_WIDTH, below_panorama_minimum
+
     height = height if height is not None else width // 2
     if width != 2 * height:
         fail(f"--width must be twice --height for an equirect panorama, got {width}x{height}")
+    if below_panorama_minimum(width, height):
+        fail(
+            f"--width {width}: a {width}x{height} panorama is smaller than the "
+            f"{PANORAMA_MIN_WIDTH}x{PANORAMA_MIN_HEIGHT} that pano4d train reads; "
+            f"use --width {PANORAMA_MIN_WIDTH} or more"
+        )
     return height
 
 
@@ -291,8 +300,7 @@ def train(
     metrics = run_train(
         cfg, render_backend=backend, trainer=kind, checkpoint_every=checkpoint_every
     )
-    console.print(f"[green]train:[/] {cfg.output / 'scene.ply4d'}")
-    console.print_json(data=metrics)
+    print_run_table(metrics, Path(cfg.output), "pano4d train")
 
 
 @app.command()
@@ -324,9 +332,7 @@ def batch(
     from pano4d.batch import batch_table, run_batch
 
     result = run_batch(scenes, report, address, gpus_per_scene, cpus_per_scene, backend, console)
-    # Into a file or a CI log the table is drawn wide enough that errors stay on one line.
-    table_console = console if console.is_terminal else Console(stderr=True, width=160)
-    table_console.print(batch_table(result))
+    table_console().print(batch_table(result))
     console.print(f"wrote {report}")
     if not result.ok:
         raise typer.Exit(code=1)
@@ -345,8 +351,20 @@ def demo(
 
     synth_height(width, None)
     metrics = run_demo(out, width=width, frames=frames, seed=seed, preset=preset)
-    console.print(f"[green]demo:[/] scene, previews and metrics in {out / 'output'}")
-    console.print_json(data=metrics)
+    print_run_table(metrics, out / "output", "pano4d demo")
+
+
+def print_run_table(metrics: dict[str, Any], output: Path, title: str) -> None:
+    """How train and demo end: a few rows of metrics.json (pano4d.summary.run_table)."""
+    from pano4d.summary import run_table
+
+    table_console().print(run_table(metrics, output, title))
+
+
+def table_console() -> Console:
+    """The console a closing table is drawn on: into a file or a CI log it is drawn wide
+    enough that paths and errors stay on one line."""
+    return console if console.is_terminal else Console(stderr=True, width=160)
 
 
 def main() -> None:

@@ -84,6 +84,12 @@ def image_size(path: PathLike) -> tuple[int, int]:
     return int(spec.width), int(spec.height)
 
 
+def below_panorama_minimum(width: int, height: int) -> bool:
+    """Whether a width×height panorama is smaller than the least the pipeline reads
+    (PANORAMA_MIN_WIDTH × PANORAMA_MIN_HEIGHT); ``pano4d synth`` refuses to write one."""
+    return width < PANORAMA_MIN_WIDTH or height < PANORAMA_MIN_HEIGHT
+
+
 def read_panorama(path: PathLike) -> np.ndarray:
     """Read an equirectangular panorama as float32 RGB (H, W, 3) in [0, 1].
 
@@ -94,7 +100,7 @@ def read_panorama(path: PathLike) -> np.ndarray:
     height, width = image.shape[:2]
     if width != 2 * height:
         raise ImageError(f"{path}: {_aspect_problem(width, height)}")
-    if width < PANORAMA_MIN_WIDTH or height < PANORAMA_MIN_HEIGHT:
+    if below_panorama_minimum(width, height):
         raise ImageError(
             f"{path}: panorama is {width}×{height}, smaller than the minimum "
             f"{PANORAMA_MIN_WIDTH}×{PANORAMA_MIN_HEIGHT}; use a larger panorama "

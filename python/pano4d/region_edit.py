@@ -5,11 +5,12 @@ The viewer draws; this module reads and writes, so that scene.yaml has one owner
 
 * :func:`open_for_editing`: the panorama as an 8-bit PNG for display, every mask region
   as a PNG at the editing resolution, and the regions as scene.yaml has them.
-* :func:`save_regions`: the edited regions back into scene.yaml. Only the text of the
-  ``regions`` list is replaced (from its first item to the end of its last); every other
-  byte of the file, comments and key order included, stays as it was. Painted masks are
-  written as PNG beside scene.yaml. The new file is validated with :func:`load_config`
-  before it replaces the old one, atomically.
+* :func:`save_regions`: the edited regions back into scene.yaml. Only the items of the
+  ``regions`` list that changed are rewritten: a region the editor left as it was keeps
+  its text and comments byte for byte, a changed one keeps the comment lines above it,
+  and every byte outside the list, comments and key order included, stays as it was.
+  Painted masks are written as PNG beside scene.yaml. The new file is validated with
+  :func:`load_config` before it replaces the old one, atomically.
 * :func:`render_preview`: the ``flow`` animator on a downscaled panorama for regions that
   need not be saved yet.
 
@@ -19,15 +20,19 @@ painted: a PNG (white = moves) at any size with the panorama's aspect.
 
 Why a splice and not a round-trip YAML library (ruamel.yaml): PyYAML, which validation
 already uses, gives every node's position in the text, so replacing the regions' span
-keeps the rest of the file byte for byte, however it is formatted; a round-trip loader
-re-emits the whole file and normalises its indentation and spacing.
+keeps the rest of the file byte for byte, however it is formatted, and so does the span
+of every region item that did not change; a round-trip loader re-emits the whole file
+and normalises its indentation and spacing.
 """
 
 from __future__ import annotations
 
+import difflib
+import json
 import re
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -134,14 +139,16 @@ def save_regions(scene: PathLike, regions: list[dict[str, Any]]) -> dict[str, An
     # Validate with the painted masks where they are now, before anything is written.
     staged = [_item(r, painted[i][0] if i in painted else None) for i, r in enumerate(regions)]
     validate_config(
-        yaml.safe_load(splice_regions(text, staged)), base_dir=scene.parent, source=scene
+        yaml.safe_load(splice_regions(text, staged, scene.parent)),
+        base_dir=scene.parent,
+        source=scene,
     )
     for src, dest in painted.values():
         with atomic_path(dest) as tmp:
             shutil.copyfile(src, tmp)
     final = [_item(r, painted[i][1].name if i in painted else None) for i, r in enumerate(regions)]
     with atomic_path(scene) as tmp:
-        tmp.write_text(splice_regions(text, final), encoding="utf-8")
+        tmp.write_text(splice_regions(text, final, scene.parent), encoding="utf-8")
         try:
             load_config(tmp)
         except ConfigError as error:
@@ -188,12 +195,15 @@ def _whole(value: Any) -> Any:
     return int(value) if isinstance(value, float) and value.is_integer() else value
 
 
-def splice_regions(text: str, regions: list[dict[str, Any]]) -> str:
-    """``text`` (a scene.yaml) with its ``regions`` list replaced by ``regions``.
+def splice_regions(text: str, regions: list[dict[str, Any]], base_dir: Path) -> str:
+    """``text`` (a scene.yaml) with its ``regions`` list made ``regions``.
 
     Every byte outside the list's span is kept: comments before its first item and after
-    its last, and the rest of the file. A block list keeps its indentation; a flow or
-    empty list (``regions: []``) becomes a block list; a missing key is appended.
+    its last, and the rest of the file. In a block list, a region that did not change (the
+    same ``region_key``; relative mask paths against ``base_dir``) keeps its text byte for
+    byte with its comments, a changed one keeps the comment lines just above it, and only
+    the changed, added and removed regions' lines change (``_item_edits`` pairs them). A
+    flow or empty list (``regions: []``) becomes a block list; a missing key is appended.
     """
     newline = "\r\n" if "\r\n" in text else "\n"
     root = yaml.compose(text, Loader=yaml.SafeLoader)
@@ -208,9 +218,7 @@ def splice_regions(text: str, regions: list[dict[str, Any]]) -> str:
     if value.start_mark.index < key.end_mark.index:
         raise EditError("regions is an alias of a list defined elsewhere; write it out in place")
     if isinstance(value, yaml.SequenceNode) and not value.flow_style and value.value:
-        first = value.start_mark
-        start = first.index - first.column
-        return text[:start] + _block(regions, first.column, newline) + text[_end(text, value) :]
+        return _splice_items(text, key, value, regions, base_dir, newline)
     # A flow list or a scalar: a block list on the lines after the key. An empty value's
     # marks sit on the next token, so it is taken to end right after the colon.
     if value.start_mark.index == value.end_mark.index:
@@ -223,6 +231,119 @@ def splice_regions(text: str, regions: list[dict[str, Any]]) -> str:
     rest = text[line_end + 1 :]
     block = _block(regions, key.start_mark.column + 2, newline)
     return text[:start].rstrip(" ") + comment + newline + block + rest
+
+
+@dataclass(frozen=True)
+class _ItemText:
+    """Where one item of a block list lies in the text: ``comments`` (the comment lines
+    just above its dash) ≤ ``dash`` (the start of its dash's line) < ``end`` (just past its
+    own last line, a comment on that line included)."""
+
+    comments: int
+    dash: int
+    end: int
+
+
+def _splice_items(
+    text: str,
+    key: yaml.Node,
+    sequence: yaml.SequenceNode,
+    regions: list[dict[str, Any]],
+    base_dir: Path,
+    newline: str,
+) -> str:
+    """The block list ``sequence`` made ``regions``, item by item (see splice_regions).
+
+    Text between two items that is not an item's comment lines (blank lines, a comment
+    set apart by one) goes with the item after it; a new region is written on its own."""
+    column = sequence.start_mark.column  # every item's dash is in this column
+    items: list[_ItemText] = []
+    after = text.find("\n", key.end_mark.index) + 1  # the list starts below its key
+    for node in sequence.value:
+        dash = _dash_line(text, node.start_mark.index, column)
+        items.append(_ItemText(_comments_above(text, dash, after), dash, _end(text, node)))
+        after = items[-1].end
+    loader = yaml.SafeLoader("")
+    old = [loader.construct_object(node, deep=True) for node in sequence.value]
+    pieces = [text[: items[0].comments]]
+    if not regions:
+        pieces.append(_block(regions, column, newline))
+    for edit, region in zip(_item_edits(old, regions, base_dir), regions, strict=True):
+        if edit is None:  # added
+            pieces.append(_block([region], column, newline))
+            continue
+        item = items[edit.old]
+        if edit.old > 0:  # what set it apart from the item before it
+            pieces.append(text[items[edit.old - 1].end : item.comments])
+        if edit.changed:
+            pieces.append(text[item.comments : item.dash] + _block([region], column, newline))
+        else:
+            pieces.append(text[item.comments : item.end])
+    pieces.append(text[items[-1].end :])
+    return "".join(pieces)
+
+
+def _dash_line(text: str, node_start: int, column: int) -> int:
+    """The start of the line holding the dash of the item whose content starts at
+    ``node_start`` (on the dash's line, or below it after a bare ``-``)."""
+    line = text.rfind("\n", 0, node_start) + 1
+    while line > 0 and (
+        text[line : line + column].strip(" ") or text[line + column : line + column + 1] != "-"
+    ):
+        line = text.rfind("\n", 0, line - 1) + 1
+    return line
+
+
+def _comments_above(text: str, dash: int, after: int) -> int:
+    """The start of the comment lines right above the line at ``dash`` (no blank line
+    between), not before ``after``; ``dash`` when there are none."""
+    start = dash
+    while start > after:
+        above = text.rfind("\n", 0, start - 1) + 1
+        if not text[above:start].strip().startswith("#"):
+            break
+        start = above
+    return max(start, after)
+
+
+@dataclass(frozen=True)
+class _Edit:
+    """What became of an old item: kept as it was, or changed into the new region."""
+
+    old: int  # its index in the file's list
+    changed: bool
+
+
+def _item_edits(
+    old: list[Any], regions: list[dict[str, Any]], base_dir: Path
+) -> list[_Edit | None]:
+    """Per new region, the old item it keeps or changes (None: an added region).
+
+    The longest run of unchanged regions in order is matched first (difflib); in a stretch
+    where the old items were replaced, old and new are paired in order as changed items and
+    the rest is added or removed.
+    """
+    old_keys = [region_key(o, base_dir) or f"old {i}" for i, o in enumerate(old)]
+    new_keys = [region_key(r, base_dir) or f"new {j}" for j, r in enumerate(regions)]
+    edits: list[_Edit | None] = [None] * len(regions)
+    matcher = difflib.SequenceMatcher(None, old_keys, new_keys, autojunk=False)
+    for tag, i0, i1, j0, j1 in matcher.get_opcodes():
+        if tag in ("equal", "replace"):
+            # replace: paired in order up to the shorter side
+            for i, j in zip(range(i0, i1), range(j0, j1), strict=False):
+                edits[j] = _Edit(i, changed=tag == "replace")
+    return edits
+
+
+def region_key(region: Any, base_dir: Path) -> str | None:
+    """What a region means, as text: two regions with the same key are the same region
+    however they are written (number forms, motion defaults spelled out or not, a mask path
+    relative to ``base_dir`` or absolute). None for what is not a valid region."""
+    try:
+        valid = Region.model_validate(region, context={"base_dir": base_dir})
+    except ValueError:
+        return None
+    return json.dumps(valid.model_dump(mode="json", exclude_none=True), sort_keys=True)
 
 
 def _end(text: str, node: yaml.Node) -> int:

@@ -18,16 +18,18 @@ what a step is: ``lift.pipeline.StepHook``).
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
 from pathlib import Path
 from typing import Any
 
-from pano4d.config import SceneConfig, load_config
+from pano4d.config import SceneConfig, config_hash, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints, TrainError
 from pano4d.lift.export import export
 from pano4d.lift.pipeline import StepHook, frame_suffix, lift, trainer_for
+from pano4d.lift.pipeline import resume_point as lift_resume_point
 from pano4d.progress import Bars
 
 KILL_AT_ENV = "PANO4D_TEST_KILL_AT"
@@ -56,7 +58,7 @@ def run_train(
     on_step = on_step if on_step is not None else kill_hook_from_env()
     out = Path(cfg.output)
     out.mkdir(parents=True, exist_ok=True)
-    checkpoints = Checkpoints.for_config(out / "checkpoints", cfg, checkpoint_every)
+    checkpoints = checkpoints_of(cfg, checkpoint_every)
     with Bars("loss", enabled=progress) as bars:
         start = time.perf_counter()
         frames_dir = out / "animate" / "frames"
@@ -78,6 +80,42 @@ def run_train(
             cfg, frames_dir, checkpoints, bars, render_backend, trainer, on_step, animate_seconds
         )
         return export(lifted, on_step)
+
+
+def checkpoints_of(cfg: SceneConfig, every: int = CHECKPOINT_EVERY) -> Checkpoints:
+    """The stage checkpoints of ``cfg``'s run, in OUTPUT/checkpoints."""
+    return Checkpoints.for_config(Path(cfg.output) / "checkpoints", cfg, every)
+
+
+def finished_metrics(cfg: SceneConfig) -> dict[str, Any] | None:
+    """The run's metrics.json if ``run_train`` finished this very config, else None.
+
+    ``run_train`` writes metrics.json last, after scene.ply4d, so a file carrying this
+    config's hash means the whole run is done.
+    """
+    out = Path(cfg.output)
+    try:
+        metrics = json.loads((out / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(metrics, dict) or metrics.get("config_hash") != config_hash(cfg):
+        return None
+    return metrics if (out / "scene.ply4d").is_file() else None
+
+
+def resume_point(cfg: SceneConfig) -> str | None:
+    """Where ``run_train`` would pick ``cfg``'s run up, as each phase reads its own state
+    (``lift.pipeline.resume_point``, ``animate.pipeline.progress``); None for a fresh
+    start."""
+    from pano4d.animate.pipeline import progress
+
+    lifted = lift_resume_point(checkpoints_of(cfg), cfg.animate.frames)
+    if lifted is not None:
+        return lifted
+    animated = progress(cfg)
+    if animated == "done":
+        return "depth frame 0"
+    return "animate" if animated == "started" else None
 
 
 def kill_hook_from_env() -> StepHook | None:

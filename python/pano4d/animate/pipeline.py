@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -139,6 +139,17 @@ def run_animate(
     )  # fmt: skip
     print_metrics(console, metrics)
     return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"], resumed_at)
+
+
+def progress(cfg: SceneConfig) -> Literal["done", "started"] | None:
+    """How far the phase got in ``cfg``'s output folder: "done" (done.json, which a rerun
+    checks against its inputs), "started" (frames written, not all), or None (nothing)."""
+    folder = animate_folder(cfg)
+    if (folder / "done.json").is_file():
+        return "done"
+    if any((folder / "frames").glob("*")):
+        return "started"
+    return None
 
 
 def inputs_hash(cfg: SceneConfig) -> str:

@@ -522,6 +522,35 @@ def fit_dynamic(
     return DynamicSets(done, seconds(), seconds() / steps, logs)
 
 
+# --- where a rerun picks up ------------------------------------------------------------------
+def resume_point(checkpoints: Checkpoints, frames: int) -> str | None:
+    """Where ``lift`` would pick a run of ``frames`` frames up, read from what the stages
+    above keep in their checkpoints ("depth frame 2", "static step 50", "dynamic t=3",
+    "export"); None when no stage has a checkpoint for these settings."""
+    dynamic = checkpoints.load("dynamic")
+    if dynamic is not None:
+        done = len(dynamic["done"])
+        return "export" if done == frames else _at_step(f"dynamic t={done}", dynamic)
+    static = checkpoints.load("static")
+    if static is not None:
+        return "dynamic t=0" if "done" in static else _at_step("static", static)
+    align = checkpoints.load("align")
+    if align is not None:
+        done = len(align["frames"])
+        return "static" if done == frames else f"align frame {done}"
+    depth = checkpoints.load("depth")
+    if depth is not None:
+        done = len(depth["depth"])
+        return "align frame 0" if done == frames else f"depth frame {done}"
+    return None
+
+
+def _at_step(label: str, state: dict[str, Any]) -> str:
+    """``label`` and the step of the optimisation ``run_trainer`` checkpointed in ``state``."""
+    step = state.get("trainer", {}).get("step", 0)
+    return f"{label} step {step}" if step else label
+
+
 # --- the phase -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Lifted:
