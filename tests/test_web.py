@@ -106,7 +106,7 @@ def reference(scene_file: Path, t: int, size: tuple[int, int]) -> np.ndarray:
     hfov = math.degrees(2 * math.atan(math.tan(camera.fov / 2) * w / h))
     cam = Camera.from_fov(hfov, w, h, camera.position, (1.0, 0.0, 0.0))
     g = ply4d.open(scene_file).at(t)
-    return render(g, cam, backend="torch").rgb.clamp(0, 1).numpy()
+    return render(g, cam).rgb.clamp(0, 1).numpy()  # `pano4d render`'s default (wgpu) rasteriser
 
 
 def moving_mask(ref0: np.ndarray, ref1: np.ndarray) -> np.ndarray:
