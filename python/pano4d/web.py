@@ -36,9 +36,10 @@ import numpy as np
 import torch
 
 from pano4d import ply4d
-from pano4d.errors import InputError
 from pano4d.camera_paths import DEFAULT_FOV_DEG, turntable
+from pano4d.errors import InputError
 from pano4d.gaussians import SH_C0, Gaussians
+from pano4d.raster_torch import quat_to_rotation
 
 # The start view: the panorama's viewpoint looking along +x (as `pano4d render` without
 # --camera), a 90° horizontal field of view at this aspect (viser's fov is vertical).
@@ -73,16 +74,8 @@ class SplatArrays:
 
 def splat_arrays(g: Gaussians) -> SplatArrays:
     """World covariance R·diag(s²)·Rᵀ, SH-0 colour and sigmoid opacity of each Gaussian."""
-    quats = torch.nn.functional.normalize(g.quats.double(), dim=-1)
-    w, x, y, z = quats.unbind(-1)
-    rot = torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(-1, 3, 3)
+    # The rasteriser's own rotation of raw quaternions (a zero quaternion is the identity).
+    rot = quat_to_rotation(g.quats.double())
     scale_sq = torch.exp(2 * g.log_scales.double())
     cov = rot @ torch.diag_embed(scale_sq) @ rot.transpose(1, 2)
     rgb = (0.5 + SH_C0 * g.sh[:, 0, :].double()).clamp(0, 1)
@@ -196,7 +189,9 @@ def client_html_path() -> Path:
 def index_html(camera: StartCamera, title: str) -> str:
     """A page that opens the client on the recording at the start camera; camera parameters
     given to index.html itself override the start view (e.g. a shared link)."""
-    defaults = json.dumps({"playbackPath": RECORDING_NAME, **camera.url_params()})
+    params = {"playbackPath": RECORDING_NAME, **camera.url_params()}
+    defaults = json.dumps(params)
+    link = html.escape(f"{CLIENT_NAME}?{urlencode(params)}")
     return f"""<!doctype html>
 <html lang="en">
 <head>
@@ -209,7 +204,7 @@ def index_html(camera: StartCamera, title: str) -> str:
   window.location.replace("{CLIENT_NAME}?" + params.toString());
 </script>
 </head>
-<body><a href="{CLIENT_NAME}?{html.escape(urlencode(json.loads(defaults)))}">Open the scene</a></body>
+<body><a href="{link}">Open the scene</a></body>
 </html>
 """
 
