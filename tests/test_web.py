@@ -197,6 +197,8 @@ def test_web_folder_shows_the_scene_and_its_timeline(
 
         show_time("0.5")  # pauses the playback on timestamp 0 (it plays 0 s to 1 s)
         check_scene_and_time_change(browser, scene_file, functools.partial(show_time, "1.5"))
+        if os.environ.get("PANO4D_WEB_SCREENSHOT"):  # README's picture: the whole page
+            browser.driver.get_screenshot_as_file(os.environ["PANO4D_WEB_SCREENSHOT"])
 
 
 def test_web_refuses_a_damaged_scene_before_writing(scene_file: Path, tmp_path: Path) -> None:
