@@ -72,7 +72,17 @@ class Browser:
         return (round(x), round(y), round(w), round(h))
 
     def frame(self) -> np.ndarray:
-        """The 3D canvas as it is on screen, (H, W, 3) float32 in [0, 1]."""
+        """The 3D canvas as it is on screen, (H, W, 3) float32 in [0, 1]; an empty array when
+        the page's renderer is too busy to answer within chromedriver's 10 s (SwiftShader
+        drawing a large scene on loaded cores): the wait loops then simply try again."""
+        from selenium.common.exceptions import TimeoutException
+
+        try:
+            return self._frame()
+        except TimeoutException:
+            return np.zeros((0, 0, 3), np.float32)
+
+    def _frame(self) -> np.ndarray:
         # Hide the page's panels and notifications for the shot, keep the canvases.
         self.driver.execute_script(
             "const s = document.createElement('style'); s.id = 'pano4d-shot';"
