@@ -18,7 +18,9 @@ SH degree-0 term (``0.5 + C0 · dc``, clamped to [0, 1]); higher SH bands are dr
 
 from __future__ import annotations
 
+import contextlib
 import html
+import io
 import json
 import math
 import shutil
@@ -214,7 +216,10 @@ def record_scene(scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> bytes:
     one timestamp every 1/fps seconds, so the client's playback bar is the timeline."""
     viser = viser_module()
     host = "127.0.0.1"
-    server = viser.ViserServer(host=host, port=free_port(host), verbose=False)
+    # The loopback server only feeds the serialiser: keep its URL banner (printed to stdout
+    # whatever `verbose` says) out of the command's output.
+    with contextlib.redirect_stdout(io.StringIO()):
+        server = viser.ViserServer(host=host, port=free_port(host), verbose=False)
     try:
         set_initial_camera(server, start_camera(scene.header))
         serializer = server.get_scene_serializer()
@@ -227,7 +232,8 @@ def record_scene(scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> bytes:
             serializer.insert_sleep(1.0 / fps)  # the last timestamp is shown for 1/fps too
         return bytes(serializer.serialize())
     finally:
-        server.stop()
+        with contextlib.redirect_stdout(io.StringIO()):
+            server.stop()
 
 
 def write_web(path: Path, out: Path, on_set: Callable[[], None] = lambda: None) -> Path:
@@ -244,6 +250,7 @@ def write_web(path: Path, out: Path, on_set: Callable[[], None] = lambda: None) 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
+        tmp.chmod(0o755)  # mkdtemp's 0700 would hide the folder from a web server's user
         (tmp / RECORDING_NAME).write_bytes(recording)
         shutil.copyfile(client, tmp / CLIENT_NAME)
         (tmp / "index.html").write_text(index_html(start_camera(scene.header), path.stem))
