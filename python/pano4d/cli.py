@@ -223,6 +223,53 @@ def export(
 
 
 @app.command()
+def serve(
+    scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
+    port: Annotated[int, typer.Option(help="Port of the viewer.")] = 8080,
+    host: Annotated[
+        str, typer.Option(help="Address to listen on (0.0.0.0: every interface).")
+    ] = "127.0.0.1",
+) -> None:
+    """A live 4D viewer in the browser (viser): time slider, play / pause, camera presets."""
+    import time as clock
+
+    from pano4d import web
+    from pano4d.ply4d import open as open_scene
+    from pano4d.progress import Bars
+
+    with Bars(transient=True, console=console) as bars:
+        sets = bars.task("sending the scene", open_scene(scene).num_times + 1)
+        server, _ = web.start_server(scene, host, port, on_set=sets.advance)
+    port = server.get_port()
+    console.print(f"[green]serve:[/] {scene} at http://{host}:{port} (Ctrl+C stops)")
+    console.print(web.forwarding_hint(host, port))
+    try:
+        while True:
+            clock.sleep(3600)
+    finally:
+        server.stop()
+
+
+@app.command()
+def web(
+    scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
+    out: Annotated[Path, typer.Argument(help="The folder to write (new or empty).")],
+) -> None:
+    """The scene as a static web page folder (viser's client + a recording): OUT/index.html."""
+    from pano4d import web as web_mod
+    from pano4d.ply4d import open as open_scene
+    from pano4d.progress import Bars
+
+    with Bars(transient=True, console=console) as bars:
+        sets = bars.task("recording the scene", open_scene(scene).num_times + 1)
+        web_mod.write_web(scene, out, on_set=sets.advance)
+    console.print(
+        f"wrote {out}: serve the folder with any file server "
+        f"(python -m http.server -d {out}) and open index.html"
+    )
+
+
+@app.command()
 def info() -> None:
     """Show the version and the GPU adapter the rasteriser uses (PANO4D_ADAPTER forces one)."""
     import pano4d

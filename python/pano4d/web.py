@@ -1,0 +1,347 @@
+"""A 4D scene in the browser, on viser (https://viser.studio): ``pano4d serve`` and ``pano4d web``.
+
+Both hand the scene to viser's own Gaussian-splat renderer (``scene.add_gaussian_splats``) and
+play it in viser's prebuilt web client, which ships inside the viser wheel (no Node, no npm):
+
+- ``serve``: a live viewer. The static set is sent once, each timestamp's dynamic set once
+  (hidden), and the time slider only switches which dynamic set is visible, so a time change
+  costs the browser a re-sort, not a download.
+- ``web``: the same scene as a static folder: a viser recording (``scene.viser``, viser's
+  scene serialisation) in which the dynamic sets take turns at the scene's fps, the client
+  copied verbatim (``viser-client.html``) and an ``index.html`` that opens the client on the
+  recording with the start camera as the URL parameters the client reads
+  (``playbackPath``, ``initialCameraPosition``/``LookAt``/``Up``/``Fov``).
+
+viser's splats carry one colour per Gaussian, so both show the view-independent colour: the
+SH degree-0 term (``0.5 + C0 · dc``, clamped to [0, 1]); higher SH bands are dropped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import html
+import io
+import json
+import math
+import shutil
+import socket
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlencode
+
+import numpy as np
+import torch
+
+from pano4d import ply4d
+from pano4d.camera_paths import DEFAULT_FOV_DEG, turntable
+from pano4d.errors import InputError
+from pano4d.gaussians import SH_C0, Gaussians
+from pano4d.raster_torch import quat_to_rotation
+
+# The start view: the panorama's viewpoint looking along +x (as `pano4d render` without
+# --camera), a 90° horizontal field of view at this aspect (viser's fov is vertical).
+START_ASPECT = 16 / 9
+# Frames of the turntable preset (one full turn, in place at the viewpoint).
+TURNTABLE_FRAMES = 120
+TURNTABLE_SECONDS = 12.0
+RECORDING_NAME = "scene.viser"
+CLIENT_NAME = "viser-client.html"
+
+
+def viser_module() -> Any:
+    """The viser package, or an InputError saying how to install it."""
+    try:
+        import viser
+    except ImportError as e:
+        raise InputError(
+            "viser is not installed: pip install 'viser>=1.1,<1.2' (or `make setup`)"
+        ) from e
+    return viser
+
+
+@dataclass(frozen=True)
+class SplatArrays:
+    """A set of Gaussians as ``add_gaussian_splats`` takes them (float32 numpy)."""
+
+    centers: np.ndarray  # (N, 3)
+    covariances: np.ndarray  # (N, 3, 3)
+    rgbs: np.ndarray  # (N, 3) SH degree-0 colour in [0, 1]
+    opacities: np.ndarray  # (N, 1)
+
+
+def splat_arrays(g: Gaussians) -> SplatArrays:
+    """World covariance R·diag(s²)·Rᵀ, SH-0 colour and sigmoid opacity of each Gaussian."""
+    # The rasteriser's own rotation of raw quaternions (a zero quaternion is the identity).
+    rot = quat_to_rotation(g.quats.double())
+    scale_sq = torch.exp(2 * g.log_scales.double())
+    cov = rot @ torch.diag_embed(scale_sq) @ rot.transpose(1, 2)
+    rgb = (0.5 + SH_C0 * g.sh[:, 0, :].double()).clamp(0, 1)
+    opacity = torch.sigmoid(g.opacity_logits.double())[:, None]
+    return SplatArrays(
+        centers=g.means.detach().cpu().numpy().astype(np.float32),
+        covariances=cov.cpu().numpy().astype(np.float32),
+        rgbs=rgb.cpu().numpy().astype(np.float32),
+        opacities=opacity.cpu().numpy().astype(np.float32),
+    )
+
+
+@dataclass(frozen=True)
+class StartCamera:
+    """A viser camera: position, look-at point, up, vertical fov in radians."""
+
+    position: tuple[float, float, float]
+    look_at: tuple[float, float, float]
+    up: tuple[float, float, float]
+    fov: float
+
+    def url_params(self) -> dict[str, str]:
+        """The URL parameters viser's client reads for its start view."""
+
+        def vec(v: tuple[float, float, float]) -> str:
+            return ",".join(f"{c:.6g}" for c in v)
+
+        return {
+            "initialCameraPosition": vec(self.position),
+            "initialCameraLookAt": vec(self.look_at),
+            "initialCameraUp": vec(self.up),
+            "initialCameraFov": f"{self.fov:.6g}",
+        }
+
+
+def vertical_fov(horizontal_fov_deg: float, aspect: float) -> float:
+    """Vertical fov (radians) of a centred pinhole camera with that horizontal fov."""
+    return 2 * math.atan(math.tan(math.radians(horizontal_fov_deg) / 2) / aspect)
+
+
+def start_camera(header: dict[str, Any], aspect: float = START_ASPECT) -> StartCamera:
+    """The panorama's viewpoint (the header's camera position), looking along +x, z up."""
+    position = tuple(float(v) for v in header.get("camera", {}).get("position", [0, 0, 0]))
+    px, py, pz = position
+    return StartCamera(
+        position=(px, py, pz),
+        look_at=(px + 1.0, py, pz),
+        up=(0.0, 0.0, 1.0),
+        fov=vertical_fov(DEFAULT_FOV_DEG, aspect),
+    )
+
+
+def open_checked(path: Path) -> ply4d.Ply4dFile:
+    """Open a ``.ply4d`` and verify every section's checksum: a damaged or truncated file is
+    refused (FormatError naming it) before anything is sent or written."""
+    scene = ply4d.open(path)
+    scene.verify()
+    return scene
+
+
+@dataclass
+class SceneNodes:
+    """The scene's viser nodes: the static set and one hidden-or-shown node per timestamp."""
+
+    static: Any
+    dynamic: list[Any]
+
+    def show_time(self, t: int) -> None:
+        for i, handle in enumerate(self.dynamic):
+            handle.visible = i == t
+
+
+def add_scene(server: Any, scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> SceneNodes:
+    """Send the static set and every dynamic set (only the first shown); z is up."""
+    server.scene.set_up_direction("+z")
+
+    def add(name: str, g: Gaussians, visible: bool) -> Any:
+        a = splat_arrays(g)
+        handle = server.scene.add_gaussian_splats(
+            name, a.centers, a.covariances, a.rgbs, a.opacities, visible=visible
+        )
+        on_set()
+        return handle
+
+    static = add("/static", scene.static(), True)
+    dynamic = [add(f"/dynamic/t{t:04d}", scene.dynamic(t), t == 0) for t in range(scene.num_times)]
+    return SceneNodes(static, dynamic)
+
+
+def set_initial_camera(server: Any, camera: StartCamera) -> None:
+    server.initial_camera.position = camera.position
+    server.initial_camera.look_at = camera.look_at
+    server.initial_camera.up = camera.up
+    server.initial_camera.fov = camera.fov
+
+
+def free_port(host: str) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+# --- pano4d web ----------------------------------------------------------------------------
+
+
+def client_html_path() -> Path:
+    """viser's prebuilt client (one self-contained HTML file in the wheel)."""
+    return Path(viser_module().__file__).parent / "client" / "build" / "index.html"
+
+
+def index_html(camera: StartCamera, title: str) -> str:
+    """A page that opens the client on the recording at the start camera; camera parameters
+    given to index.html itself override the start view (e.g. a shared link)."""
+    params = {"playbackPath": RECORDING_NAME, **camera.url_params()}
+    defaults = json.dumps(params)
+    link = html.escape(f"{CLIENT_NAME}?{urlencode(params)}")
+    return f"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<title>{html.escape(title)}</title>
+<script>
+  // viser's client reads the recording and the start view from its URL parameters.
+  const params = new URLSearchParams({defaults});
+  for (const [key, value] of new URLSearchParams(window.location.search)) params.set(key, value);
+  window.location.replace("{CLIENT_NAME}?" + params.toString());
+</script>
+</head>
+<body><a href="{link}">Open the scene</a></body>
+</html>
+"""
+
+
+def record_scene(scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> bytes:
+    """The scene as a viser recording: all sets at time 0 (the first timestamp shown), then
+    one timestamp every 1/fps seconds, so the client's playback bar is the timeline."""
+    viser = viser_module()
+    host = "127.0.0.1"
+    # The loopback server only feeds the serialiser: keep its URL banner (printed to stdout
+    # whatever `verbose` says) out of the command's output.
+    with contextlib.redirect_stdout(io.StringIO()):
+        server = viser.ViserServer(host=host, port=free_port(host), verbose=False)
+    try:
+        set_initial_camera(server, start_camera(scene.header))
+        serializer = server.get_scene_serializer()
+        nodes = add_scene(server, scene, on_set)
+        fps = float(scene.header["fps"])
+        if scene.num_times > 1:
+            for t in range(1, scene.num_times):
+                serializer.insert_sleep(1.0 / fps)
+                nodes.show_time(t)
+            serializer.insert_sleep(1.0 / fps)  # the last timestamp is shown for 1/fps too
+        return bytes(serializer.serialize())
+    finally:
+        with contextlib.redirect_stdout(io.StringIO()):
+            server.stop()
+
+
+def write_web(path: Path, out: Path, on_set: Callable[[], None] = lambda: None) -> Path:
+    """Write ``out/`` (index.html, viser-client.html, scene.viser) for ``path``.
+
+    The scene is verified before ``out`` is touched; the folder is built beside it and
+    renamed into place, so a failure leaves no half-written folder.
+    """
+    scene = open_checked(path)
+    client = client_html_path()
+    if out.exists() and not (out.is_dir() and not any(out.iterdir())):
+        raise InputError(f"{out} exists and is not an empty folder; choose a new one")
+    recording = record_scene(scene, on_set)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        tmp.chmod(0o755)  # mkdtemp's 0700 would hide the folder from a web server's user
+        (tmp / RECORDING_NAME).write_bytes(recording)
+        shutil.copyfile(client, tmp / CLIENT_NAME)
+        (tmp / "index.html").write_text(index_html(start_camera(scene.header), path.stem))
+        if out.exists():
+            out.rmdir()
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+# --- pano4d serve --------------------------------------------------------------------------
+
+
+class TimeControls:
+    """The time slider, play / pause, loop, and the camera presets of the live viewer."""
+
+    def __init__(self, server: Any, nodes: SceneNodes, fps: float, camera: StartCamera) -> None:
+        self.server, self.nodes, self.fps, self.camera = server, nodes, fps, camera
+        gui = server.gui
+        last = max(len(nodes.dynamic) - 1, 0)
+        self.slider = gui.add_slider("time index", min=0, max=last, step=1, initial_value=0)
+        self.playing = gui.add_checkbox("play", initial_value=False)
+        self.loop = gui.add_checkbox("loop", initial_value=True)
+        gui.add_button("panorama viewpoint").on_click(lambda _: self.reset_cameras())
+        gui.add_button("turntable").on_click(lambda _: self.start_turntable())
+        self.slider.on_update(lambda _: nodes.show_time(int(self.slider.value)))
+        self._stop = threading.Event()
+        threading.Thread(target=self._play, daemon=True).start()
+
+    def _play(self) -> None:
+        while not self._stop.wait(1.0 / self.fps):
+            if not self.playing.value or len(self.nodes.dynamic) < 2:
+                continue
+            t = int(self.slider.value) + 1
+            if t >= len(self.nodes.dynamic):
+                if not self.loop.value:
+                    self.playing.value = False
+                    continue
+                t = 0
+            self.slider.value = t
+
+    def reset_cameras(self) -> None:
+        for client in self.server.get_clients().values():
+            client.camera.position = self.camera.position
+            client.camera.look_at = self.camera.look_at
+            client.camera.up_direction = self.camera.up
+            client.camera.fov = self.camera.fov
+
+    def start_turntable(self) -> None:
+        threading.Thread(target=self._turntable, daemon=True).start()
+
+    def _turntable(self) -> None:
+        # The cameras of `pano4d render --path turntable`: a full turn in place.
+        cams = turntable(16, 9, TURNTABLE_FRAMES)
+        for cam in cams:
+            position = tuple(float(v) for v in cam.position)
+            look_at = tuple(float(p + f) for p, f in zip(position, cam.forward, strict=True))
+            for client in self.server.get_clients().values():
+                client.camera.position = position
+                client.camera.look_at = look_at
+            time.sleep(TURNTABLE_SECONDS / TURNTABLE_FRAMES)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def start_server(
+    path: Path, host: str, port: int, on_set: Callable[[], None] = lambda: None
+) -> tuple[Any, TimeControls]:
+    """Start the live viewer on ``host:port`` with the scene loaded; returns (server, controls)."""
+    scene = open_checked(path)
+    viser = viser_module()
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    try:
+        camera = start_camera(scene.header)
+        set_initial_camera(server, camera)
+        server.gui.configure_theme(control_layout="floating", show_share_button=False)
+        nodes = add_scene(server, scene, on_set)
+        controls = TimeControls(server, nodes, float(scene.header["fps"]), camera)
+    except BaseException:
+        server.stop()
+        raise
+    return server, controls
+
+
+def forwarding_hint(host: str, port: int) -> str:
+    """How to reach the viewer from a laptop when it runs on a remote machine."""
+    return (
+        f"from another machine: ssh -N -L {port}:localhost:{port} USER@THIS_HOST, "
+        f"then open http://localhost:{port}"
+        + ("" if host in ("127.0.0.1", "localhost") else f" (or http://{host}:{port})")
+    )

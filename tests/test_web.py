@@ -1,0 +1,216 @@
+"""`pano4d serve` and `pano4d web` in a real browser (headless Chromium, WebGL2 on SwiftShader).
+
+A tiny scene (a wall of ~500 Gaussians in front of the viewpoint, and a blob in front of it that
+is red at timestamp 0 and blue, moved, at timestamp 1) is shown by viser's client; the canvas
+is compared with `pano4d render` (SH-0 colour, the same camera) and the change between the
+two timestamps must stay inside the blob's region.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import http.server
+import math
+import os
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from browser import Browser, chromium_missing, psnr
+from pano4d_process import error_line, pano4d
+
+from pano4d import ply4d, web
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians, rgb_to_sh_dc
+from pano4d.render import render
+
+WIDTH, HEIGHT = 640, 360
+# SwiftShader's splats against pano4d's rasteriser, SH-0 colour, measured 2026-11-24: see
+# README "In the browser". viser quantises colour/opacity to 8 bits and covariances to float16
+# and sorts splats by centre depth, pano4d sorts per tile: a few dB off bit-exact.
+MIN_PSNR_DB = 24.0
+# Outside the moving region (the blob's pixels at either timestamp, grown by DILATE pixels)
+# a time change may move a pixel by at most this much (99.9th percentile of |Δ|).
+OUTSIDE_TOLERANCE = 0.06
+DILATE = 6
+
+
+def wall(seed: int) -> Gaussians:
+    """~500 opaque round Gaussians of random colour in a slab 4 m in front of the viewpoint,
+    covering the whole start view (depths jittered, so every renderer sorts them alike)."""
+    gen = torch.Generator().manual_seed(seed)
+    y, z = torch.meshgrid(torch.arange(-5, 5.01, 0.35), torch.arange(-3, 3.01, 0.35), indexing="ij")
+    n = y.numel()
+    x = 4.0 + 0.6 * torch.rand(n, generator=gen)
+    rgb = torch.rand(n, 3, generator=gen) * 0.8 + 0.1
+    return Gaussians(
+        means=torch.stack([x, y.reshape(-1), z.reshape(-1)], dim=-1),
+        log_scales=torch.full((n, 3), math.log(0.2)),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
+        opacity_logits=torch.full((n,), 5.0),
+        sh=rgb_to_sh_dc(rgb)[:, None, :],
+    )
+
+
+def blob(centre: tuple[float, float, float], rgb: tuple[float, float, float]) -> Gaussians:
+    """60 flat-coloured Gaussians in a ball of radius 0.3 at ``centre``."""
+    gen = torch.Generator().manual_seed(7)
+    n = 60
+    means = torch.tensor(centre) + 0.3 * torch.rand(n, 3, generator=gen) - 0.15
+    return Gaussians(
+        means=means,
+        log_scales=torch.full((n, 3), math.log(0.08)),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
+        opacity_logits=torch.full((n,), 5.0),
+        sh=rgb_to_sh_dc(torch.tensor(rgb).repeat(n, 1))[:, None, :],
+    )
+
+
+def tiny_scene() -> ply4d.Scene4D:
+    return ply4d.Scene4D(
+        static=wall(seed=0),
+        dynamic=[blob((2.0, 0.3, 0.0), (1.0, 0.1, 0.1)), blob((2.0, -0.3, 0.2), (0.1, 0.2, 1.0))],
+        timestamps=[0.0, 0.5],
+        fps=1.0,  # timestamp t plays from t to t + 1 s in the `pano4d web` recording
+    )
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("web") / "tiny.ply4d"
+    ply4d.write(path, tiny_scene())
+    return path
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    missing = chromium_missing()
+    if missing:
+        pytest.fail(missing)  # `make setup` installs it: a missing browser is a failure here
+    b = Browser(WIDTH, HEIGHT)
+    yield b
+    b.close()
+
+
+def reference(scene_file: Path, t: int, size: tuple[int, int]) -> np.ndarray:
+    """What `pano4d render` draws at the browser's start view, canvas size ``(w, h)``: the
+    client keeps viser's vertical fov, so the horizontal fov follows the canvas aspect."""
+    w, h = size
+    camera = web.start_camera(ply4d.open(scene_file).header)
+    hfov = math.degrees(2 * math.atan(math.tan(camera.fov / 2) * w / h))
+    cam = Camera.from_fov(hfov, w, h, camera.position, (1.0, 0.0, 0.0))
+    g = ply4d.open(scene_file).at(t)
+    return render(g, cam).rgb.clamp(0, 1).numpy()  # `pano4d render`'s default (wgpu) rasteriser
+
+
+def moving_mask(ref0: np.ndarray, ref1: np.ndarray) -> np.ndarray:
+    """Pixels the blob covers at either timestamp, grown by DILATE pixels."""
+    mask = torch.from_numpy(np.abs(ref0 - ref1).max(-1) > 0.02)[None, None].float()
+    grown = torch.nn.functional.max_pool2d(mask, 2 * DILATE + 1, stride=1, padding=DILATE)
+    return grown[0, 0].numpy() > 0
+
+
+def textured(frame: np.ndarray) -> bool:
+    """The shell is drawn: the canvas is not one flat colour (viser's empty background)."""
+    return float(frame.std()) > 0.05
+
+
+def check_scene_and_time_change(
+    b: Browser, scene_file: Path, change_time: functools.partial[None]
+) -> None:
+    first = b.wait_for_scene(textured)
+    size = (first.shape[1], first.shape[0])
+    ref0, ref1 = reference(scene_file, 0, size), reference(scene_file, 1, size)
+    assert psnr(first, ref0) >= MIN_PSNR_DB, psnr(first, ref0)
+    change_time()
+    second = b.wait_for_scene(lambda f: textured(f) and float(np.abs(f - first).max()) > 0.3)
+    assert psnr(second, ref1) >= MIN_PSNR_DB, psnr(second, ref1)
+    moving = moving_mask(ref0, ref1)
+    delta = np.abs(second - first).max(-1)
+    assert 0.01 < moving.mean() < 0.3, moving.mean()  # the blob is in view, not everywhere
+    assert np.quantile(delta[~moving], 0.999) <= OUTSIDE_TOLERANCE
+    assert delta[moving].mean() > 0.1  # the blob did change colour where it is
+
+
+def test_serve_shows_the_scene_and_its_time_slider(scene_file: Path, browser: Browser) -> None:
+    port = web.free_port("127.0.0.1")
+    command = [sys.executable, "-m", "pano4d.cli", "serve", str(scene_file), "--port", str(port)]
+    proc = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
+    try:
+        assert proc.stderr is not None
+        lines = []
+        for line in proc.stderr:
+            lines.append(line)
+            if "http://127.0.0.1:" in line:
+                break
+        assert f"http://127.0.0.1:{port}" in "".join(lines), lines
+        browser.open(f"http://127.0.0.1:{port}/")
+
+        def next_timestamp() -> None:
+            from selenium.webdriver.common.keys import Keys
+
+            slider = browser.driver.find_element("css selector", "[role=slider]")
+            slider.send_keys(Keys.ARROW_RIGHT)
+
+        check_scene_and_time_change(browser, scene_file, functools.partial(next_timestamp))
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+@contextlib.contextmanager
+def file_server(folder: Path) -> Iterator[str]:
+    """`python -m http.server` on loopback, in a thread; yields its URL."""
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(folder))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+
+
+def test_web_folder_shows_the_scene_and_its_timeline(
+    scene_file: Path, browser: Browser, tmp_path: Path
+) -> None:
+    out = tmp_path / "site"
+    result = pano4d("web", scene_file, out)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "scene.viser", web.CLIENT_NAME]
+    with file_server(out) as url:
+        browser.open(f"{url}/index.html")
+        assert "playbackPath=scene.viser" in browser.driver.current_url
+
+        def show_time(seconds: str) -> None:
+            from selenium.webdriver.common.keys import Keys
+
+            box = browser.driver.find_element("css selector", "input.mantine-NumberInput-input")
+            box.send_keys(Keys.CONTROL, "a")
+            box.send_keys(seconds)
+
+        show_time("0.5")  # pauses the playback on timestamp 0 (it plays 0 s to 1 s)
+        check_scene_and_time_change(browser, scene_file, functools.partial(show_time, "1.5"))
+        if os.environ.get("PANO4D_WEB_SCREENSHOT"):  # README's picture: the whole page
+            browser.driver.get_screenshot_as_file(os.environ["PANO4D_WEB_SCREENSHOT"])
+
+
+def test_web_refuses_a_damaged_scene_before_writing(scene_file: Path, tmp_path: Path) -> None:
+    data = scene_file.read_bytes()
+    for name, damaged in [
+        ("truncated", data[: len(data) - 100]),
+        ("flipped", data[:-200] + bytes([data[-200] ^ 0xFF]) + data[-199:]),
+    ]:
+        path = tmp_path / f"{name}.ply4d"
+        path.write_bytes(damaged)
+        out = tmp_path / f"{name}-site"
+        line = error_line(pano4d("web", path, out))
+        assert str(path) in line, line
+        assert not out.exists()
+        assert [p.name for p in tmp_path.iterdir() if p.name.startswith(f".{name}")] == []
