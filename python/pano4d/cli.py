@@ -351,6 +351,28 @@ def train(
 
 
 @app.command()
+def views(
+    scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
+    out: Annotated[Path, typer.Argument(help="Output folder of the dataset.")],
+    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index.")] = 0,
+) -> None:
+    """The lifting phase's views of one timestamp as a dataset other trainers read: nerfstudio
+    transforms.json, COLMAP text model, images, aligned depth, moving-region masks, points.
+
+    Runs the depth and alignment stages through the scene's checkpoints (read back after a
+    `pano4d train`). All views share one centre: use transforms.json's scene_scale in place of
+    a trainer's automatic scale (README, "Other trainers")."""
+    from pano4d.config import load_config
+    from pano4d.lift.views_export import export_views
+
+    dataset = export_views(load_config(scene), out, time)
+    console.print(
+        f"[green]views:[/] {dataset.views} views of t={dataset.time}, {dataset.points} points, "
+        f"scene_scale {dataset.scene_scale:.4g} in {dataset.folder}"
+    )
+
+
+@app.command()
 def batch(
     scenes: Annotated[
         list[Path],

@@ -61,20 +61,7 @@ def run_train(
     checkpoints = checkpoints_of(cfg, checkpoint_every)
     with Bars("loss", enabled=progress) as bars:
         start = time.perf_counter()
-        frames_dir = out / "animate" / "frames"
-        suffix = frame_suffix(cfg)
-        # Frames written by the animating phase are re-checked by it (it skips when its inputs
-        # are unchanged); a complete set put there by hand, with no record, is used as is.
-        recorded = (out / "animate" / "done.json").is_file()
-        if recorded or not _frames_complete(frames_dir, cfg.animate.frames, suffix):
-            from pano4d.animate.pipeline import run_animate
-
-            animated = run_animate(cfg, progress=progress, on_step=on_step)
-            checkpoints.resumed("animate", frame=animated.resumed_at)
-            if not _frames_complete(frames_dir, cfg.animate.frames, suffix):
-                raise TrainError(
-                    f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
-                )
+        frames_dir = animation_frames(cfg, checkpoints, progress, on_step)
         animate_seconds = time.perf_counter() - start
         lifted = lift(
             cfg, frames_dir, checkpoints, bars, render_backend, trainer, on_step, animate_seconds
@@ -116,6 +103,29 @@ def resume_point(cfg: SceneConfig) -> str | None:
     if animated == "done":
         return "depth frame 0"
     return "animate" if animated == "started" else None
+
+
+def animation_frames(
+    cfg: SceneConfig, checkpoints: Checkpoints, progress: bool, on_step: StepHook | None
+) -> Path:
+    """The folder of the animation's frames, after running the animating phase if needed.
+
+    Frames written by the animating phase are re-checked by it (it skips when its inputs are
+    unchanged); a complete set put there by hand, with no record, is used as is."""
+    out = Path(cfg.output)
+    frames_dir = out / "animate" / "frames"
+    suffix = frame_suffix(cfg)
+    recorded = (out / "animate" / "done.json").is_file()
+    if recorded or not _frames_complete(frames_dir, cfg.animate.frames, suffix):
+        from pano4d.animate.pipeline import run_animate
+
+        animated = run_animate(cfg, progress=progress, on_step=on_step)
+        checkpoints.resumed("animate", frame=animated.resumed_at)
+        if not _frames_complete(frames_dir, cfg.animate.frames, suffix):
+            raise TrainError(
+                f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
+            )
+    return frames_dir
 
 
 def kill_hook_from_env() -> StepHook | None:
