@@ -17,7 +17,7 @@ use super::params::{
 use super::present::{PresentKernel, TARGET_FORMAT};
 use super::project::{ProjectBuffers, ProjectKernel};
 use super::sort::{scan_plan, scratch_len, SortKernels};
-use super::tiles::{IntersectionBuffers, TileKernels};
+use super::tiles::{GatherBuffers, IntersectionBuffers, TileKernels};
 use super::RasterError;
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
@@ -215,13 +215,16 @@ impl Renderer {
             &b.depth_plan,
             32,
         );
+        let gather = GatherBuffers {
+            params: &b.params,
+            tile_counts: &tile_counts,
+            depth_order: &dv[depth_sorted],
+            offsets: &offsets,
+        };
         self.tiles.encode_gather(
             &mut encoder.begin_compute_pass(&Default::default()),
             &device,
-            &b.params,
-            &tile_counts,
-            &dv[depth_sorted],
-            &offsets,
+            &gather,
             n,
         );
         self.sort

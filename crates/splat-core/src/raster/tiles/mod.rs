@@ -37,6 +37,14 @@ pub(crate) fn ranges_module() -> KernelModule {
 /// Byte offset of the ranges' workgroups in the tile plan (tiles.wgsl, `tile_plan`).
 const RANGES_GROUPS_OFFSET: u64 = 20;
 
+/// What `gather_counts` reads and writes (tiles.wgsl's bindings 0, 2, 3, 4).
+pub(crate) struct GatherBuffers<'a> {
+    pub params: &'a wgpu::Buffer,
+    pub tile_counts: &'a wgpu::Buffer,
+    pub depth_order: &'a wgpu::Buffer,
+    pub offsets: &'a wgpu::Buffer,
+}
+
 /// What the intersections are made from and written to (tiles.wgsl's bindings).
 pub(crate) struct IntersectionBuffers<'a> {
     pub params: &'a wgpu::Buffer,
@@ -75,16 +83,13 @@ impl TileKernels {
         }
     }
 
-    /// The tile counts of `n` Gaussians in depth order, and a trailing 0, into `offsets`
-    /// (to be scanned).
+    /// The tile counts of `n` Gaussians in depth order, and a trailing 0, into
+    /// `b.offsets` (to be scanned); reads `b.params`, `b.tile_counts`, `b.depth_order`.
     pub(crate) fn encode_gather(
         &self,
         pass: &mut wgpu::ComputePass<'_>,
         device: &wgpu::Device,
-        params: &wgpu::Buffer,
-        tile_counts: &wgpu::Buffer,
-        depth_order: &wgpu::Buffer,
-        offsets: &wgpu::Buffer,
+        b: &GatherBuffers<'_>,
         n: u32,
     ) {
         run_linear(
@@ -92,10 +97,10 @@ impl TileKernels {
             device,
             &self.gather_counts,
             &[
-                (0, params),
-                (2, tile_counts),
-                (3, depth_order),
-                (4, offsets),
+                (0, b.params),
+                (2, b.tile_counts),
+                (3, b.depth_order),
+                (4, b.offsets),
             ],
             div_ceil(n + 1, 256),
         );
