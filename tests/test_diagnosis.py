@@ -16,6 +16,7 @@ import pytest
 from pano4d import synth
 from pano4d.config import SceneConfig, load_config
 from pano4d.images import read_image
+from pano4d.lift.convergence import Stop
 from pano4d.lift.diagnosis import (
     LOG_EVERY,
     MARGIN_B,
@@ -36,19 +37,20 @@ from pano4d.train import run_train
 def _log(name: str, start: int, steps: int, terms: list[str]) -> TrainLog:
     log = TrainLog(name, start)
     for step in range(0, steps + 1, 10):
-        log.record_loss(step, {t: 0.5 * math.exp(-step / 300) + 0.01 * (i + 1)
-                               for i, t in enumerate(terms)})  # fmt: skip
+        log.record_loss(step, step % 7, {t: 0.5 * math.exp(-step / 300) + 0.01 * (i + 1)
+                                         for i, t in enumerate(terms)})  # fmt: skip
     return log
 
 
 def test_a_log_survives_its_checkpoint_form() -> None:
     log = _log("static", 100, 50, ["total", "l1", "geo"])
     log.densify.append(DensifyStats(20, 100, 3, 10, 0, 107, 1000, 90, 0.02, "share"))
+    log.stop = Stop(50, "converged", 0.004)
     again = TrainLog.from_dict(json.loads(json.dumps(log.to_dict())))
     assert again == log
     assert again.terms() == ["total", "l1", "geo"]
     with pytest.raises(ValueError, match="unknown loss terms"):
-        log.record_loss(60, {"l2": 1.0})
+        log.record_loss(60, 0, {"l2": 1.0})
 
 
 def test_the_plot_draws_one_curve_per_active_term(tmp_path: Path) -> None:

@@ -7,11 +7,12 @@ uninterrupted run's. ``write_diagnosis`` writes
 
 - ``densify.jsonl``: per optimisation a ``start`` line (its Gaussians), a ``densify`` line
   per densify-and-prune (pruned for opacity, split for their position gradient and from which
-  mean gradient on, clipped by the budget) and an ``end`` line (what it stored), so that
-  start + Σ (added − pruned − clipped) = end;
-- ``losses.json``: the loss curves, per optimisation;
+  mean gradient on, clipped by the budget) and an ``end`` line (what it stored, where it
+  stopped and why), so that start + Σ (added − pruned − clipped) = end;
+- ``losses.json``: the loss curves and each optimisation's stop (``convergence.Stop``);
 - ``loss.png``: those curves, a panel for the static set and one for the dynamic sets (the
-  timestamps one after another), one curve per active term, densification steps marked.
+  timestamps one after another), one curve per active term, densification steps dotted, a
+  stop before the preset's count marked with a short bar at the top.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import OpenImageIO as oiio
 
 from pano4d.fsutil import write_json_atomic, write_text_atomic
 from pano4d.images import write_image
+from pano4d.lift.convergence import Stop
 
 LOG_EVERY = 10  # steps between loss records (the resident trainer reads its loss this often)
 # The terms a loss record may hold, in plot order, and their colours.
@@ -72,14 +74,17 @@ class TrainLog:
 
     name: str  # "static" or "dynamic t=<t>"
     start: int  # Gaussians when it started
-    losses: list[dict[str, float]] = field(default_factory=list)  # {"step", term: value}
+    losses: list[dict[str, float]] = field(default_factory=list)  # {"step", "view", term: …}
     densify: list[DensifyStats] = field(default_factory=list)
+    stop: Stop | None = None  # where and why it stopped, once it has
 
-    def record_loss(self, step: int, terms: Mapping[str, SupportsFloat]) -> None:
+    def record_loss(self, step: int, view: int, terms: Mapping[str, SupportsFloat]) -> None:
+        """The loss terms of ``step``, whose one view was ``view``."""
         unknown = set(terms) - set(TERMS)
         if unknown:
             raise ValueError(f"unknown loss terms {sorted(unknown)}; known: {list(TERMS)}")
-        self.losses.append({"step": float(step), **{k: float(v) for k, v in terms.items()}})
+        record = {k: float(v) for k, v in terms.items()}
+        self.losses.append({"step": float(step), "view": float(view), **record})
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -87,18 +92,21 @@ class TrainLog:
             "start": self.start,
             "losses": [dict(r) for r in self.losses],
             "densify": [asdict(d) for d in self.densify],
+            "stop": self.stop.to_dict() if self.stop is not None else None,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainLog:
+        stop = d.get("stop")  # absent in checkpoints written before the stop rule
         return cls(
             d["name"], int(d["start"]), [dict(r) for r in d["losses"]],
             [DensifyStats(**s) for s in d["densify"]],
+            Stop(**stop) if stop is not None else None,
         )  # fmt: skip
 
     def terms(self) -> list[str]:
         """The terms recorded at least once, in TERMS order."""
-        seen = {k for r in self.losses for k in r if k != "step"}
+        seen = {k for r in self.losses for k in r if k in TERMS}
         return [t for t in TERMS if t in seen]
 
 
@@ -108,7 +116,8 @@ def densify_lines(log: TrainLog, stored: int) -> list[dict[str, Any]]:
                                     "gaussians": log.start}]  # fmt: skip
     for d in log.densify:
         lines.append({"event": "densify", "optimisation": log.name, **asdict(d)})
-    lines.append({"event": "end", "optimisation": log.name, "gaussians": stored})
+    stop = log.stop.to_dict() if log.stop is not None else None
+    lines.append({"event": "end", "optimisation": log.name, "gaussians": stored, "stop": stop})
     return lines
 
 
@@ -120,7 +129,8 @@ def write_diagnosis(out: Path, logs: list[tuple[TrainLog, int]]) -> None:
     write_json_atomic(out / "losses.json", {
         "every": LOG_EVERY,
         "names": TERM_NAMES,
-        "optimisations": [{"name": log.name, "terms": log.terms(), "losses": log.losses}
+        "optimisations": [{"name": log.name, "terms": log.terms(), "losses": log.losses,
+                           "stop": log.stop.to_dict() if log.stop is not None else None}
                           for log, _ in logs],
     })  # fmt: skip
     static = [log for log, _ in logs if log.name == "static"]
@@ -136,6 +146,7 @@ PANEL_W, PANEL_H = 960, 320
 MARGIN_L, MARGIN_R, MARGIN_T, MARGIN_B = 70, 20, 56, 36
 FONT = 14
 BACKGROUND = (0.08, 0.08, 0.09)
+STOP = (0.4, 1.0, 0.6)  # the mark of an optimisation the stop rule ended early
 
 
 def plot_losses(path: Path, panels: list[tuple[str, list[TrainLog]]]) -> list[list[str]]:
@@ -162,7 +173,7 @@ def _panel(buf: oiio.ImageBuf, top: int, title: str, logs: list[TrainLog]) -> li
         offsets.append(total)
         total += max((r["step"] for r in log.losses), default=0.0)
     values = [v for log in logs for r in log.losses for k, v in r.items()
-              if k != "step" and v > 0 and math.isfinite(v)]  # fmt: skip
+              if k in TERMS and v > 0 and math.isfinite(v)]  # fmt: skip
     start = sum(log.start for log in logs[:1])
     _text(buf, x0, top + FONT + 6, f"{title} ({start} Gaussians at the start)", grey)
     if not values or total <= 0:
@@ -194,6 +205,9 @@ def _panel(buf: oiio.ImageBuf, top: int, title: str, logs: list[TrainLog]) -> li
             x = to_x(offset + d.step)
             for y in range(y0, y1, 6):
                 oiio.ImageBufAlgo.render_point(buf, x, y, list(grey))
+        if log.stop is not None and log.stop.reason != "count":  # stopped early: a bar
+            x = to_x(offset + log.stop.step)
+            oiio.ImageBufAlgo.render_box(buf, x - 1, y0, x + 1, y0 + 12, list(STOP), fill=True)
     oiio.ImageBufAlgo.render_box(buf, x0, y0, x1, y1, list(grey))
     terms = [t for t in TERMS if any(t in log.terms() for log in logs)]
     for term in terms:

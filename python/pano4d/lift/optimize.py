@@ -259,6 +259,7 @@ class Trainer(ABC):
         self.background = background
         self.device = gaussians.device
         self.step = 0
+        self.last_view = -1  # the view of the last step (the records say which view they saw)
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
         # For the diagnosis: diagnosis.TERMS names → values (tensors, read when logged).
@@ -271,8 +272,9 @@ class Trainer(ABC):
         """Sets up the optimisation of ``gaussians`` (called once by __init__)."""
 
     def next_view(self) -> int:
-        """The view of the next step, drawn from the seeded generator."""
-        return int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+        """The view of the next step, drawn from the seeded generator (``last_view``)."""
+        self.last_view = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+        return self.last_view
 
     @abstractmethod
     def train_step(self) -> float:
@@ -292,12 +294,13 @@ class Trainer(ABC):
     @abstractmethod
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
-    def run(self, on_step: Callable[[Trainer], None] | None = None) -> Gaussians:
-        """Train up to ``knobs.iterations`` (continuing from ``self.step``); returns the result."""
+    def run(self, on_step: Callable[[Trainer], bool] | None = None) -> Gaussians:
+        """Train up to ``knobs.iterations`` (continuing from ``self.step``), or until
+        ``on_step`` returns True after a step; returns the result."""
         while self.step < self.knobs.iterations:
             self.train_step()
-            if on_step is not None:
-                on_step(self)
+            if on_step is not None and on_step(self):
+                break
         return self.result()
 
 

@@ -43,6 +43,7 @@ from pano4d.gaussians import Gaussians
 from pano4d.images import read_image
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
+from pano4d.lift.convergence import StopRule
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
@@ -358,23 +359,32 @@ def run_trainer(
     bars: Bars,
     on_step: StepHook | None,
     extra: Callable[[], dict[str, Any]],
+    rule: StopRule,
 ) -> Gaussians:
     """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOG_EVERY steps
     and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
-    ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too)."""
+    ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too).
+    ``rule`` decides, at each loss record, whether it has converged; where and why it
+    stopped goes into ``log.stop``."""
     task = bars.task(log.name, trainer.knobs.iterations, trainer.step)
 
-    def step(tr: Trainer) -> None:
+    def step(tr: Trainer) -> bool:
         task.update(tr.step, loss=tr.last_loss)
+        stop = None
         if tr.step % LOG_EVERY == 0 or tr.step == tr.knobs.iterations:
-            log.record_loss(tr.step, tr.last_terms)
+            log.record_loss(tr.step, tr.last_view, tr.last_terms)
+            stop = rule.check(log.losses, tr.step)
         if tr.last_densify is not None and tr.last_densify.step == tr.step:
             log.densify.append(tr.last_densify)
-        if tr.step % checkpoints.every == 0 and tr.step < tr.knobs.iterations:
+        if stop is not None:
+            log.stop = stop
+            task.update(tr.knobs.iterations, loss=tr.last_loss)
+        elif tr.step % checkpoints.every == 0:
             state = {**extra(), "trainer": tr.state_dict(), "trainer_kind": kind}
             checkpoints.save(name, state)
         if on_step is not None:
             on_step(name, tr.step)
+        return stop is not None
 
     return trainer.run(step)
 
@@ -431,7 +441,7 @@ def fit_static(
 
     result = run_trainer(
         trainer, inputs.trainer, log, checkpoints, "static", bars, on_step,
-        lambda: {"seconds": seconds(), "log": log.to_dict()},
+        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations),
     )  # fmt: skip
     per_step = (time.perf_counter() - start) / max(1, trainer.step - first_step)
     checkpoints.save("static", {
@@ -452,7 +462,8 @@ class DynamicSets:
 
 
 def dynamic_iterations(full: int, t: int) -> int:
-    """Steps for timestamp t: the full count first, half for the warm-started later ones."""
+    """At most this many steps for timestamp t: the full count first, half for the
+    warm-started later ones; the stop rule (``convergence``) may end either sooner."""
     return full if t == 0 else max(1, full // 2)
 
 
@@ -514,12 +525,15 @@ def fit_dynamic(
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
         log = logs[t]
+        rule = StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])
         done.append(
-            run_trainer(trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved)
+            run_trainer(
+                trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved, rule
+            )
         )
         checkpoints.save("dynamic", saved())
-    steps = sum(dynamic_iterations(full, t) for t in range(total))
-    return DynamicSets(done, seconds(), seconds() / steps, logs)
+    steps = sum(log.stop.step for log in logs if log.stop is not None)
+    return DynamicSets(done, seconds(), seconds() / max(1, steps), logs)
 
 
 # --- where a rerun picks up ------------------------------------------------------------------

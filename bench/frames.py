@@ -1,0 +1,388 @@
+"""What the dynamic sets cost against the static set, per frame count, before and after a change.
+
+For every case (a scene, a preset, a frame count) each variant of the code trains the scene
+in a subprocess and the parent measures all variants the same way: the stage times
+(metrics.json), the optimisation steps each stage took (losses.json), a dynamic step's cost
+relative to a static one next to the moving share of the views' pixels, and — on the
+synthetic kinds, where the true animation feeds the lifting (as bench/quality.py does) —
+the moving region's PSNR in every frame against ground truth: four cameras a frame,
+displaced by 1 % of the median scene depth and looking at what moves, ray-cast by the
+scene's own world, PSNR over the pixels that see something moving. The lake (no ground
+truth) is timed with the real animator.
+
+Variants: ``after`` is this tree; ``--base REV`` adds ``before``, REV's code in a git
+worktree under bench/out/frames/ (its own extension built there when REV's Rust differs),
+each case run by both, one after the other, in one run. Prints a table, writes
+bench/out/frames.json and bench/out/frames.png (moving-region PSNR against minutes of
+lifting, one curve per variant, a point per case).
+
+    .venv/bin/python bench/frames.py [--base REV] [--kinds landscape room] [--frames 2 7 14]
+        [--width 2048] [--preset draft] [--lake] [--balanced-step 14]
+        [--overrides JSON] [--json bench/out/frames.json]
+
+``--balanced-step L``: balanced at 1024 wide with L frames and ``--balanced-iterations``
+steps per optimisation (the preset's step count would not fit this machine): the cost of a
+step of each stage, from which a full run's time is estimated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "bench" / "out"
+# A child process runs one variant's code: PANO4D_PYTHON names its package folder.
+sys.path.insert(0, os.environ.get("PANO4D_PYTHON", str(REPO / "python")))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+LAKE = Path(os.environ.get("PANO4D_SHARED", REPO.parent / "shared")) / "data" / "pano_lake.jpg"
+LAKE_BOX = [1950, 1050, 4000, 1350]  # README's "A real panorama": the open water
+CAMERAS_PER_FRAME = 4
+CAMERA_SIZE = 128
+CAMERA_FOV_DEG = 60.0
+DISPLACEMENT = 0.01  # of the median scene depth, as the 1 % novel views
+
+
+# --- the child: one variant trains one case ---------------------------------------------------
+def train_case(case: dict[str, Any]) -> None:
+    """Train ``case`` with the code on sys.path (the variant's) and leave its files in
+    ``case["output"]``."""
+    from pano4d.config import load_config
+    from pano4d.train import run_train
+
+    output = Path(case["output"])
+    if output.exists():
+        shutil.rmtree(output)
+    cfg = load_config(Path(case["scene"]))
+    update: dict[str, Any] = {"preset": case["preset"], "output": output}
+    if case["overrides"]:
+        update["overrides"] = case["overrides"]
+    if case["kind"] != "lake":
+        root = Path(case["scene"]).parent
+        frames = sorted((root / "gt" / "frames").glob("*.png"))[: case["frames"]]
+        (output / "animate" / "frames").mkdir(parents=True)
+        for f in frames:
+            shutil.copy(f, output / "animate" / "frames" / f.name)
+        update["depth"] = cfg.depth.model_copy(
+            update={"backend": "file", "path": root / "depth.exr"}
+        )
+    update["animate"] = cfg.animate.model_copy(update={"frames": case["frames"]})
+    run_train(cfg.model_copy(update=update), progress=False)
+
+
+# --- the parent -------------------------------------------------------------------------------
+def synth_scene(kind: str, width: int, frames: int, seed: int) -> Path:
+    """A cached `pano4d synth` scene with ``frames`` true frames; its scene.yaml."""
+    from pano4d import synth
+
+    root = OUT / "frames" / "scenes" / f"{kind}_w{width}_l{frames}_s{seed}"
+    if not (root / "scene.yaml").is_file():
+        scene = synth.make_scene(seed, width, width // 2, frames, views=0, kind=kind)
+        synth.write_scene(root, scene)
+    return root / "scene.yaml"
+
+
+def lake_scene(frames: int) -> Path:
+    root = OUT / "frames" / "scenes" / "lake"
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / "scene.yaml"
+    path.write_text(
+        f"panorama: {LAKE}\n"
+        f"regions:\n  - box: {LAKE_BOX}\n    motion: {{direction_deg: 0.0, speed: 0.3}}\n"
+        f"animate: {{backend: flow, frames: {frames}}}\npreset: draft\n"
+    )
+    return path
+
+
+class Variant:
+    """One version of the code: its package folder and extension."""
+
+    def __init__(self, name: str, python: Path) -> None:
+        self.name, self.python = name, python
+
+    @classmethod
+    def base(cls, rev: str) -> Variant:
+        """REV's code in a worktree, with its own extension when REV's Rust differs."""
+        tree = OUT / "frames" / f"base-{rev}"
+        if not tree.exists():
+            git = ["git", "-C", str(REPO)]
+            subprocess.run([*git, "worktree", "add", "--detach", str(tree), rev], check=True)
+        python = tree / "python"
+        same_rust = subprocess.run(
+            ["git", "-C", str(REPO), "diff", "--quiet", rev, "--", "crates", "Cargo.lock"]
+        ).returncode == 0
+        built = list((REPO / "python" / "pano4d").glob("_core*.so"))
+        if not built:
+            raise SystemExit("error: build the extension first (make setup)")
+        target = python / "pano4d" / built[0].name
+        if same_rust:
+            shutil.copy(built[0], target)
+        elif not target.exists():
+            env = {**os.environ, "CARGO_TARGET_DIR": str(OUT / "frames" / "target-base")}
+            subprocess.run(
+                ["cargo", "build", "--release", "--locked", "-p", "splat-core",
+                 "--features", "python", "--lib"], cwd=tree, env=env, check=True,
+            )  # fmt: skip
+            shutil.copy(OUT / "frames" / "target-base" / "release" / "libsplat_core.so", target)
+        return cls("before", python)
+
+    def train(self, case: dict[str, Any]) -> float:
+        env = {**os.environ, "PANO4D_PYTHON": str(self.python), "PYTHONPATH": str(self.python)}
+        start = time.perf_counter()
+        subprocess.run(
+            [sys.executable, __file__, "--child", json.dumps(case)], env=env, check=True
+        )
+        return time.perf_counter() - start
+
+
+def steps_taken(output: Path) -> dict[str, int]:
+    """Optimisation steps per stage, from losses.json (each optimisation's last record)."""
+    data = json.loads((output / "losses.json").read_text())
+    steps = {"static": 0, "dynamic": 0}
+    for opt in data["optimisations"]:
+        last = int(max((r["step"] for r in opt["losses"]), default=0))
+        steps["static" if opt["name"] == "static" else "dynamic"] += last
+    return steps
+
+
+def moving_share(scene_yaml: Path, output: Path) -> float:
+    """Moving pixels over all pixels of the views that see motion (what a dynamic step
+    renders today, against what can change)."""
+    from pano4d.config import load_config
+    from pano4d.images import read_mask
+    from pano4d.resample import equirect_to_perspective
+    from pano4d.sphere import view_layout
+
+    metrics = json.loads((output / "metrics.json").read_text())
+    cfg = load_config(scene_yaml)
+    w, h = metrics["working_size"]
+    mask_path = scene_yaml.parent / "mask.png"
+    if mask_path.is_file():
+        mask = torch.from_numpy(read_mask(mask_path, w, h)).float()
+    else:
+        from pano4d.regions import moving_mask
+
+        mask = moving_mask(cfg, w, h).float()
+    size = int(metrics["knobs"]["view_size"])
+    shares = []
+    for cam in view_layout(cfg.lift.views, cfg.lift.fov_deg, size):
+        inside = equirect_to_perspective(mask[None], cam)[0] > 0.5
+        if inside.any():
+            shares.append(float(inside.float().mean()))
+    return float(np.mean(shares)) if shares else 0.0
+
+
+def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
+    """Per frame: PSNR over the moving pixels of CAMERAS_PER_FRAME ground-truth views."""
+    from pano4d import ply4d
+    from pano4d.camera import Camera
+    from pano4d.metrics import psnr
+    from pano4d.render import render
+    from pano4d.synth.scene import SCENE_KINDS
+    from pano4d.synth.views import median_scene_depth, render_view
+
+    world = SCENE_KINDS[kind](seed, frames)
+    median = median_scene_depth(world)
+    scene = ply4d.read(output / "scene.ply4d")
+    gen = torch.Generator().manual_seed(seed + 4242)
+    # Directions that see what moves: the moving pixels of a small panorama.
+    from pano4d.sphere import equirect_directions
+
+    dirs = equirect_directions(256, 128).view(-1, 3)
+    moving_dirs = dirs[world.moves(world.cast(torch.zeros(3), dirs).label)]
+    out = []
+    for t in range(frames):
+        values = []
+        for _ in range(CAMERAS_PER_FRAME):
+            forward = moving_dirs[int(torch.randint(len(moving_dirs), (), generator=gen))]
+            offset = torch.nn.functional.normalize(torch.randn(3, generator=gen), dim=0)
+            position = (offset * DISPLACEMENT * median).tolist()
+            cam = Camera.from_fov(
+                CAMERA_FOV_DEG, CAMERA_SIZE, CAMERA_SIZE, position, forward.tolist()
+            )
+            truth, _ = render_view(world, cam, t)
+            hits = world.cast(cam.position.to(torch.float32), cam.world_directions().reshape(-1, 3))
+            moves = world.moves(hits.label).view(CAMERA_SIZE, CAMERA_SIZE)
+            with torch.no_grad():
+                rgb = render(scene.at(t), cam).rgb.clamp(0, 1).cpu()
+            if moves.any():
+                values.append(psnr(rgb[moves], truth[moves]))
+        out.append(float(np.mean(values)) if values else math.nan)
+    return out
+
+
+def measure(variant: Variant, case: dict[str, Any]) -> dict[str, Any]:
+    output = Path(case["output"])
+    wall = variant.train(case)
+    metrics = json.loads((output / "metrics.json").read_text())
+    timings = metrics["timings_s"]
+    steps = steps_taken(output)
+    per_step = {
+        stage: timings[stage] / steps[stage] if steps[stage] else None
+        for stage in ("static", "dynamic")
+    }
+    row = {
+        "variant": variant.name,
+        "case": case["name"],
+        "wall_s": wall,
+        "timings_s": timings,
+        "steps": steps,
+        "per_step_s": per_step,
+        "dynamic_over_static": timings["dynamic"] / max(timings["static"], 1e-9),
+        "step_ratio": (per_step["dynamic"] / per_step["static"])
+        if per_step["dynamic"] and per_step["static"] else None,
+        "moving_share": moving_share(Path(case["scene"]), output),
+        "gaussians": metrics["gaussians"],
+    }
+    if case["kind"] != "lake":
+        row["moving_psnr"] = moving_psnr(case["kind"], case["seed"], case["frames"], output)
+    return row
+
+
+def plot(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Moving-region PSNR (mean over frames) against minutes of lifting (static + dynamic),
+    one colour per variant, a point per case."""
+    import OpenImageIO as oiio
+
+    from pano4d.images import write_image
+
+    points = [(r["variant"], (r["timings_s"]["static"] + r["timings_s"]["dynamic"]) / 60,
+               float(np.nanmean(r["moving_psnr"])), r["case"])
+              for r in rows if r.get("moving_psnr")]  # fmt: skip
+    if not points:
+        return
+    w, h, m = 960, 480, 70
+    buf = oiio.ImageBuf(oiio.ImageSpec(w, h, 3, "float"))
+    oiio.ImageBufAlgo.fill(buf, [0.08, 0.08, 0.09])
+    xs, ys = [p[1] for p in points], [p[2] for p in points]
+    x_hi = max(xs) * 1.1
+    y_lo, y_hi = math.floor(min(ys)) - 1, math.ceil(max(ys)) + 1
+    colours = {"before": [1.0, 0.6, 0.3], "after": [0.4, 0.8, 1.0]}
+    grey = [0.6, 0.6, 0.6]
+
+    def at(x: float, y: float) -> tuple[int, int]:
+        fy = (y - y_lo) / (y_hi - y_lo)
+        return round(m + (w - 2 * m) * x / x_hi), round(h - m - (h - 2 * m) * fy)
+
+    oiio.ImageBufAlgo.render_box(buf, m, m, w - m, h - m, grey)
+    oiio.ImageBufAlgo.render_text(buf, m, 30, "moving-region PSNR (dB) against lifting minutes",
+                                  16, "", grey)  # fmt: skip
+    for tick in range(5):
+        x = x_hi * tick / 4
+        px = at(x, y_lo)[0] - 10
+        oiio.ImageBufAlgo.render_text(buf, px, h - m + 22, f"{x:.1f}", 14, "", grey)
+    for y in range(y_lo, y_hi + 1, max(1, (y_hi - y_lo) // 5)):
+        oiio.ImageBufAlgo.render_text(buf, 10, at(0, y)[1] + 5, f"{y}", 14, "", grey)
+    for variant, x, y, case in points:
+        px, py = at(x, y)
+        colour = colours.get(variant, grey)
+        oiio.ImageBufAlgo.render_box(buf, px - 4, py - 4, px + 4, py + 4, colour, fill=True)
+        oiio.ImageBufAlgo.render_text(buf, px + 8, py - 6, case, 12, "", colour)
+    legend = m
+    for variant, colour in colours.items():
+        oiio.ImageBufAlgo.render_text(buf, legend, h - 12, variant, 14, "", colour)
+        legend += 80
+    pixels = buf.get_pixels(oiio.FLOAT).reshape(h, w, 3)
+    write_image(path, np.ascontiguousarray(pixels))
+
+
+def cases(args: argparse.Namespace) -> list[dict[str, Any]]:
+    overrides = json.loads(args.overrides) if args.overrides else {}
+    out = []
+    for kind in args.kinds:
+        for frames in args.frames:
+            scene = synth_scene(kind, args.width, max(args.frames), args.seed)
+            out.append({"name": f"{kind} {args.preset} w{args.width} L{frames}", "kind": kind,
+                        "scene": str(scene), "preset": args.preset, "frames": frames,
+                        "seed": args.seed, "overrides": overrides})  # fmt: skip
+    if args.balanced_step:
+        frames = args.balanced_step
+        scene = synth_scene("landscape", 1024, frames, args.seed)
+        steps = {"gaussian_iterations": args.balanced_iterations, **overrides}
+        name = f"landscape balanced w1024 L{frames} ({args.balanced_iterations} steps)"
+        out.append({"name": name,
+                    "kind": "landscape", "scene": str(scene), "preset": "balanced",
+                    "frames": frames, "seed": args.seed, "overrides": steps})  # fmt: skip
+    if args.lake:
+        for frames in args.frames:
+            out.append({"name": f"lake draft L{frames}", "kind": "lake",
+                        "scene": str(lake_scene(frames)), "preset": "draft", "frames": frames,
+                        "seed": 0, "overrides": overrides})  # fmt: skip
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--base", help="also run REV's code (the 'before' variant)")
+    parser.add_argument("--kinds", nargs="*", default=["landscape", "room"])
+    parser.add_argument("--frames", nargs="+", type=int, default=[2, 7, 14])
+    parser.add_argument("--width", type=int, default=2048)
+    parser.add_argument("--preset", default="draft")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--lake", action="store_true", help="also the lake (real animator)")
+    parser.add_argument("--balanced-step", type=int, default=0, metavar="L")
+    parser.add_argument("--balanced-iterations", type=int, default=100)
+    parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
+    parser.add_argument("--json", type=Path, default=OUT / "frames.json")
+    args = parser.parse_args()
+    if args.child:
+        train_case(json.loads(args.child))
+        return
+
+    variants = [Variant("after", REPO / "python")]
+    if args.base:
+        variants.insert(0, Variant.base(args.base))
+    rows = []
+    print(HEADER)
+    for case in cases(args):
+        for variant in variants:
+            slug = case["name"].replace(" ", "_").replace("(", "").replace(")", "")
+            run = {**case, "output": str(OUT / "frames" / "runs" / f"{slug}_{variant.name}")}
+            rows.append(measure(variant, run))
+            print_row(rows[-1])
+    write_json(args, rows)
+    plot(args.json.with_suffix(".png"), rows)
+    print(f"wrote {args.json} and {args.json.with_suffix('.png')}")
+
+
+HEADER = (f"{'case':<40}{'variant':>8}{'static s':>9}{'dyn s':>8}{'dyn/st':>7}"
+          f"{'steps st':>9}{'steps dyn':>10}{'step x':>7}{'moving':>7}{'PSNR mv':>8}")  # fmt: skip
+
+
+def print_row(r: dict[str, Any]) -> None:
+    psnr = float(np.nanmean(r["moving_psnr"])) if r.get("moving_psnr") else math.nan
+    print(f"{r['case']:<40}{r['variant']:>8}{r['timings_s']['static']:>9.1f}"
+          f"{r['timings_s']['dynamic']:>8.1f}{r['dynamic_over_static']:>7.2f}"
+          f"{r['steps']['static']:>9}{r['steps']['dynamic']:>10}"
+          f"{r['step_ratio'] or math.nan:>7.2f}{r['moving_share']:>7.2f}{psnr:>8.2f}",
+          flush=True)  # fmt: skip
+
+
+
+def write_json(args: argparse.Namespace, rows: list[dict[str, Any]]) -> None:
+    from pano4d.fsutil import write_json_atomic
+
+    write_json_atomic(args.json, {
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                    "torch": torch.__version__, "load": os.getloadavg()},
+        "date": time.strftime("%Y-%m-%d"),
+        "base": args.base,
+        "rows": rows,
+    })  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
