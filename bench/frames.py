@@ -189,7 +189,7 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
     from pano4d import ply4d
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
-    from pano4d.render import render
+    from pano4d.renderer import render
     from pano4d.synth.scene import SCENE_KINDS
     from pano4d.synth.views import median_scene_depth, render_view
 
