@@ -148,7 +148,7 @@ def resume_point(cfg: SceneConfig) -> str | None:
     animate = out / "animate"
     if (animate / "done.json").is_file():
         return "depth frame 0"
-    if any((animate / "frames").glob("*")):
+    if any((animate / "moving").glob("*")) or any((animate / "frames").glob("*")):
         return "animate"
     return None
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -304,9 +304,11 @@ def evaluate_frames(
     panorama: ArrayLike | str | os.PathLike[str],
     mask: ArrayLike | str | os.PathLike[str],
 ) -> dict[str, Any]:
-    """``animate_metrics`` of the frames in ``folder``; the panorama and mask may be arrays
-    or image paths (a mask file: white = moves)."""
-    from pano4d.images import read_image, read_mask, read_panorama
+    """``animate_metrics`` of the frames in ``folder`` (whole frames, or the animating
+    phase's store of frame boxes: ``animate.frames.open_frames``); the panorama and mask may
+    be arrays or image paths (a mask file: white = moves)."""
+    from pano4d.animate.frames import open_frames
+    from pano4d.images import read_mask, read_panorama
 
     if isinstance(panorama, str | os.PathLike):
         panorama = read_panorama(panorama)
@@ -314,11 +316,9 @@ def evaluate_frames(
     if isinstance(mask, str | os.PathLike):
         mask = read_mask(mask, pano.shape[1], pano.shape[0])
 
-    def frames() -> Iterator[np.ndarray]:
-        for path in frame_paths(folder):
-            yield read_image(path)[:, :, :3]
-
-    return animate_metrics(frames(), pano, mask)
+    paths = frame_paths(folder)
+    frames = open_frames(Path(folder), len(paths), paths[0].suffix)
+    return animate_metrics(frames.frames(), pano, mask)
 
 
 # --- novel views -------------------------------------------------------------------------

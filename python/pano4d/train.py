@@ -1,7 +1,8 @@
 """``pano4d train``: both phases end to end, resumable (docs/design.md, "Files a run writes").
 
-1. the animating phase (``pano4d.animate.pipeline.run_animate``), unless
-   output/animate/frames holds a complete set put there by hand;
+1. the animating phase (``pano4d.animate.pipeline.run_animate``; its frames in
+   output/animate/moving), unless output/animate/frames holds a complete set of whole
+   frames put there by hand;
 2. the lifting phase (``pano4d.lift.pipeline.lift``): depth, alignment, the static and the
    dynamic Gaussians, each stage checkpointed in output/checkpoints/;
 3. its outputs (``pano4d.lift.export``): scene.ply4d, preview.mp4, contact.png, metrics.json.
@@ -24,10 +25,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pano4d.animate.frames import frame_suffix
 from pano4d.config import SceneConfig, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints, TrainError
 from pano4d.lift.export import export
-from pano4d.lift.pipeline import StepHook, frame_suffix, lift, trainer_for
+from pano4d.lift.pipeline import StepHook, lift, trainer_for
 from pano4d.progress import Bars
 
 KILL_AT_ENV = "PANO4D_TEST_KILL_AT"
@@ -60,16 +62,18 @@ def run_train(
     with Bars("loss", enabled=progress) as bars:
         start = time.perf_counter()
         frames_dir = out / "animate" / "frames"
-        suffix = frame_suffix(cfg)
+        suffix = frame_suffix(cfg.panorama)
         # Frames written by the animating phase are re-checked by it (it skips when its inputs
-        # are unchanged); a complete set put there by hand, with no record, is used as is.
+        # are unchanged); a complete set of whole frames put in output/animate/frames by
+        # hand, with no record, is used as is.
         recorded = (out / "animate" / "done.json").is_file()
         if recorded or not _frames_complete(frames_dir, cfg.animate.frames, suffix):
             from pano4d.animate.pipeline import run_animate
 
             animated = run_animate(cfg, progress=progress, on_step=on_step)
             checkpoints.resumed("animate", frame=animated.resumed_at)
-            if not _frames_complete(frames_dir, cfg.animate.frames, suffix):
+            frames_dir = animated.store.folder
+            if not animated.store.complete():
                 raise TrainError(
                     f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
                 )
