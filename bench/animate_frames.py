@@ -1,6 +1,6 @@
 """The animating phase (backend flow) before and after its frames became the moving box.
 
-For each scene, the phase of this checkout and that of a base commit (default e8560f2, the
+For each scene, the phase of this checkout's HEAD commit and that of a base commit (default e8560f2, the
 last one writing whole 16-bit PNG frames) run alternately, each in its own process with
 its own sources, on the same scene.yaml: the phase's wall time (and within it the preview
 video and metrics, which read every frame back), the bytes it writes, and the time the
@@ -83,9 +83,10 @@ print(json.dumps({"animate_s": animate_s, "read_frames_s": read_s, "working_size
 """
 
 
-def base_sources(commit: str, into: Path) -> Path:
-    """The base commit's python/ tree, exported (no worktree registered in the repository)."""
-    target = into / f"base-{commit}"
+def commit_sources(commit: str, into: Path) -> Path:
+    """A commit's python/ tree, exported (no worktree registered in the repository), with
+    this checkout's compiled extension: edits made while the benchmark runs do not leak in."""
+    target = into / f"sources-{commit}"
     if not (target / "python" / "pano4d").is_dir():
         target.mkdir(parents=True, exist_ok=True)
         archive = subprocess.run(
@@ -154,9 +155,13 @@ def main() -> None:
     args = parser.parse_args()
 
     work = Path(tempfile.mkdtemp(prefix="animate-frames-"))
-    variants = {"base": base_sources(args.base, work), "box": ROOT / "python"}
+    head = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    variants = {"base": commit_sources(args.base, work), "box": commit_sources(head, work)}
     results: dict[str, Any] = {}
-    print(f"animate (flow) {args.frames} frames: base {args.base} against this checkout")
+    print(f"animate (flow) {args.frames} frames: base {args.base} against {head} (HEAD)")
     print(f"{'scene':>6} {'variant':>7} {'animate s':>10} {'video+metrics s':>16} "
           f"{'read_frames s':>14} {'frame MB':>9} {'files':>6} {'load':>11}")  # fmt: skip
     for index, name in enumerate(args.scenes):
@@ -199,6 +204,7 @@ def main() -> None:
         "threads": torch.get_num_threads(),
         "frames": args.frames,
         "base": args.base,
+        "head": head,
         "scenes": results,
     }
     write_json_atomic(args.out, record)
