@@ -1,12 +1,12 @@
 """The animating phase (backend flow) before and after its frames became the moving box.
 
-For each scene, the phase of this checkout's HEAD commit and that of a base commit (default e8560f2, the
-last one writing whole 16-bit PNG frames) run alternately, each in its own process with
-its own sources, on the same scene.yaml: the phase's wall time (and within it the preview
-video and metrics, which read every frame back), the bytes it writes, and the time the
-lifting phase's ``read_frames`` (what ``prepare`` does) takes to read the frames back at the
-working resolution of the draft preset. Then the two outputs are compared: every whole
-frame and every downsampled frame must be equal bit for bit.
+For each scene, the phase of this checkout's HEAD commit and that of a base commit
+(default e8560f2, the last one writing whole 16-bit PNG frames) run alternately, each in
+its own process with its own sources, on the same scene.yaml: the phase's wall time (and
+within it the preview video and metrics, which read every frame back), the bytes it
+writes, and the time the lifting phase's ``read_frames`` (what ``prepare`` does) takes to
+read the frames back at the working resolution of the draft preset. Then the two outputs
+are compared: every whole frame and every downsampled frame must be equal bit for bit.
 
 Scenes: the lake (``/work/shared/data/pano_lake.jpg``, 4096×2048, the README's box over
 the water) and a synthetic landscape (``pano4d synth``, its own mask). Prints a table and
