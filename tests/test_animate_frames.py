@@ -126,3 +126,25 @@ def test_the_whole_frames_come_back_as_images(tmp_path: Path) -> None:
     assert metrics.evaluate_frames(out, cfg.panorama, mask) == metrics.evaluate_frames(
         store.folder, cfg.panorama, mask
     )
+
+
+def test_video_metrics_of_the_box_rows_are_those_of_the_whole_frames(tmp_path: Path) -> None:
+    """The animating phase measures only the rows of the box (the rest of every frame is
+    the static panorama): the same figures as measuring the whole frames, the maxima and
+    the flow bit for bit, the mean steps up to the order of a float sum."""
+    cfg = across_the_seam(tmp_path, frames=4)
+    store = run_animate(cfg, progress=False).store
+    panorama = read_panorama(cfg.panorama)
+    mask = build_regions(cfg, WIDTH, HEIGHT).mask
+    box = store.box()
+    assert box.bottom - box.top < HEIGHT // 2
+    whole, rows = metrics.VideoMetrics(panorama, mask), metrics.VideoMetrics(panorama, mask)
+    for frame in store.frames():
+        whole.add(frame)
+        rows.add(frame, rows=(box.top, box.bottom))
+    assert whole.flows == rows.flows and whole.flows[0][0] > 0.1
+    assert whole.seams == rows.seams and whole.static_max == rows.static_max
+    assert rows.steps_moving == pytest.approx(whole.steps_moving, rel=1e-5)
+    assert rows.steps_static == pytest.approx(whole.steps_static, rel=1e-5, abs=1e-9)
+    assert min(whole.steps_moving) > 1e-3
+    assert rows.result() == pytest.approx(whole.result(), rel=1e-5, abs=1e-9)

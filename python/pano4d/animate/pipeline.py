@@ -243,10 +243,11 @@ def _write_video_and_measure(
     """Read the frames back once (whole, as a user gets them): encode the preview and
     measure them on the way."""
     metrics = VideoMetrics(panorama, regions.mask)
+    box = store.box()
 
     def frames() -> Iterator[np.ndarray]:
         for frame in store.frames():
-            metrics.add(frame)
+            metrics.add(frame, rows=(box.top, box.bottom))  # the rest is the static panorama
             yield _preview(frame)
 
     write_video(video, frames(), fps)
