@@ -245,7 +245,7 @@ def test_run_animate_writes_frames_video_metrics_and_resumes(tmp_path: Path) -> 
     cfg = scene(tmp_path)
     result = run_animate(cfg, progress=False)
     assert not result.skipped
-    assert [p.name for p in result.frames] == ["0000.png", "0001.png", "0002.png", "0003.png"]
+    assert [p.name for p in result.store.paths] == ["0000.png", "0001.png", "0002.png", "0003.png"]
     assert result.video.stat().st_size > 0
     assert (result.folder / "done.json").is_file() and (result.folder / "metrics.json").is_file()
     assert result.metrics["static_error"] == 0.0
@@ -255,24 +255,26 @@ def test_run_animate_writes_frames_video_metrics_and_resumes(tmp_path: Path) -> 
 
     panorama = read_image(cfg.panorama)
     mask = build_regions(cfg, 512, 256).mask.numpy()
-    first = read_image(result.frames[0])
+    first = next(result.store.frames())
     assert first.dtype == np.float32 and np.array_equal(first[~mask], panorama[~mask])
-    again = metrics.evaluate_frames(result.folder / "frames", cfg.panorama, mask)
+    again = metrics.evaluate_frames(result.store.folder, cfg.panorama, mask)
     assert again["static_error"] == 0.0
 
-    written = [p.read_bytes() for p in result.frames]
+    written = [p.read_bytes() for p in result.store.paths]
+    static = result.store.static_path.stat().st_mtime_ns
     assert run_animate(cfg, progress=False).skipped
-    for path in result.frames[2:]:
+    for path in result.store.paths[2:]:
         path.unlink()
     (result.folder / "done.json").unlink()
     resumed = run_animate(cfg, progress=False)
     assert not resumed.skipped and resumed.resumed_at == 2  # not from frame 0
-    assert [p.read_bytes() for p in resumed.frames] == written
+    assert [p.read_bytes() for p in resumed.store.paths] == written
+    assert result.store.static_path.stat().st_mtime_ns == static  # written once
 
 
 def test_a_changed_config_starts_over(tmp_path: Path) -> None:
     run_animate(scene(tmp_path), progress=False)
-    frames = tmp_path / "out" / "animate" / "frames"
+    frames = tmp_path / "out" / "animate" / "moving"
     (frames / "0003.png").unlink()
     stale = frames / "0001.png"
     before = stale.read_bytes()

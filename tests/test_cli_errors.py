@@ -71,7 +71,7 @@ def box_outside_the_image(folder: Path) -> None:
 
 
 def broken_frame(folder: Path) -> None:
-    (folder / "output" / "animate" / "frames" / "0001.png").write_bytes(b"\x89PNG not a png")
+    (folder / "output" / "animate" / "moving" / "0001.png").write_bytes(b"\x89PNG not a png")
 
 
 def broken_frame_of_a_killed_run(folder: Path) -> None:
@@ -104,7 +104,7 @@ CASES: list[Case] = [
     ("train-box", box_outside_the_image, ["train", "{s}/scene.yaml"],
      ["regions[0].box", "outside the 512×256"]),
     ("train-frame", broken_frame, ["train", "{s}/scene.yaml"],
-     ["frames/0001.png", "cannot read this image"]),
+     ["moving/0001.png", "cannot read this image"]),
     ("train-checkpoint", unreadable_checkpoint, ["train", "{s}/scene.yaml"],
      ["checkpoints/static.pt", "unreadable checkpoint", "delete it"]),
     ("animate-2to1", panorama_not_2_to_1, ["animate", "{s}/scene.yaml"],
@@ -112,9 +112,9 @@ CASES: list[Case] = [
     ("animate-box", box_outside_the_image, ["animate", "{s}/scene.yaml"],
      ["regions[0].box", "outside the 512×256"]),
     ("animate-frame", broken_frame_of_a_killed_run, ["animate", "{s}/scene.yaml"],
-     ["frames/0001.png", "cannot read this image"]),
+     ["moving/0001.png", "cannot read this image"]),
     ("eval-frame", broken_frame, ["eval", "{s}/scene.yaml"],
-     ["frames/0001.png", "cannot read this image"]),
+     ["moving/0001.png", "cannot read this image"]),
     ("eval-2to1", panorama_not_2_to_1, ["eval", "{s}/scene.yaml"],
      ["panorama.png", "must be exactly 2:1"]),
     ("export-junk", junk_scene_file, ["export", "{s}/junk.ply4d", "{s}/out.ply"],

@@ -59,9 +59,10 @@ def assert_same_scene(a: Path, b: Path) -> None:
         ga, gb = sa.at(t).tensors(), sb.at(t).tensors()
         for name in ga:
             assert torch.equal(ga[name], gb[name]), (t, name)
-    frames = sorted((a / "output" / "animate" / "frames").glob("*.png"))
+    frames = sorted((a / "output" / "animate" / "moving").glob("*"))
+    assert len(frames) > 2, "the frame store: static.png, box.json and the frames"
     for frame in frames:
-        other = b / "output" / "animate" / "frames" / frame.name
+        other = b / "output" / "animate" / "moving" / frame.name
         assert frame.read_bytes() == other.read_bytes(), frame.name
 
 

@@ -180,13 +180,20 @@ def synth(
 @app.command()
 def animate(
     scene: Annotated[Path, typer.Argument(help="The scene.yaml.")],
+    frames_out: Annotated[
+        Path | None,
+        typer.Option(help="Also write every frame whole into this folder (0000.png …)."),
+    ] = None,
 ) -> None:
     """Animating phase alone: the panoramic video in OUTPUT/animate (resumes after a kill)."""
     from pano4d.animate.pipeline import run_animate
     from pano4d.config import load_config
 
     result = run_animate(load_config(scene))
-    console.print(f"[green]animate:[/] {len(result.frames)} frames in {result.folder}")
+    console.print(f"[green]animate:[/] {result.store.count} frames in {result.store.folder}")
+    if frames_out is not None:
+        written = result.store.export(frames_out)
+        console.print(f"wrote {len(written)} whole frames into {frames_out}")
 
 
 @app.command("eval")
@@ -195,13 +202,15 @@ def evaluate(
 ) -> None:
     """Measure an animation: seam, static-region, motion, flicker and loop figures."""
     from pano4d import metrics
-    from pano4d.animate.pipeline import animate_folder, print_metrics
+    from pano4d.animate.pipeline import animate_folder, frame_store, print_metrics
     from pano4d.config import load_config
     from pano4d.images import read_panorama
     from pano4d.regions import build_regions
 
     cfg = load_config(scene)
-    frames = animate_folder(cfg) / "frames"
+    store = frame_store(cfg)
+    # The animating phase's frames, or whole frames put in output/animate/frames by hand.
+    frames = store.folder if store.box_path.is_file() else animate_folder(cfg) / "frames"
     if not any(frames.glob("*.png")) and not any(frames.glob("*.exr")):
         fail(f"no frames in {frames}; run `pano4d animate {scene}` first")
     panorama = read_panorama(cfg.panorama)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -148,11 +148,16 @@ def region_flow(a: ArrayLike, b: ArrayLike, mask: ArrayLike) -> tuple[float, flo
     """Mean flow from frame a to frame b inside ``mask``: (mean length in full-resolution
     pixels, mean du, mean dv). Measured at most FLOW_MAX_WIDTH wide, away from the mask's
     border (where the window would straddle static pixels)."""
-    ga, gb, m, factor = _flow_inputs(a, b, mask)
-    flow = optical_flow(ga, gb)
-    if not bool(m.any()):
+    ta, tb, m = _tensor(a), _tensor(b), _mask(mask)
+    factor = _flow_factor(*m.shape)
+    flow = optical_flow(_flow_grey(ta, factor), _flow_grey(tb, factor))
+    return _mean_flow(flow, _flow_mask(m, factor), factor)
+
+
+def _mean_flow(flow: torch.Tensor, inside: torch.Tensor, factor: int) -> tuple[float, float, float]:
+    if not bool(inside.any()):
         return 0.0, 0.0, 0.0
-    du, dv = flow[0][m] * factor, flow[1][m] * factor
+    du, dv = flow[0][inside] * factor, flow[1][inside] * factor
     return float(torch.hypot(du, dv).mean()), float(du.mean()), float(dv.mean())
 
 
@@ -193,7 +198,13 @@ def cross_view_disagreement(
 
 # --- whole videos ------------------------------------------------------------------------
 class VideoMetrics:
-    """Streaming accumulator: ``add(frame)`` for each frame in order, then ``result()``."""
+    """Streaming accumulator: ``add(frame)`` for each frame in order, then ``result()``.
+
+    ``add(frame, rows=(top, bottom))`` says the frame equals the first frame outside those
+    rows (the animating phase's frames: only their box moves, ``pano4d.animate.frames``);
+    then the figures that run over pixels look only at those rows, and give the whole
+    frame's values (the same maxima; means up to the order of a float sum).
+    """
 
     def __init__(self, panorama: ArrayLike, mask: ArrayLike) -> None:
         self.panorama = _tensor(panorama)
@@ -213,27 +224,51 @@ class VideoMetrics:
         self.steps_moving: list[float] = []
         self.steps_static: list[float] = []
         self.flows: list[tuple[float, float, float]] = []
+        self._flow_factor = _flow_factor(*self.mask.shape)
+        self._flow_mask = _flow_mask(self.mask, self._flow_factor)
+        self._flow_previous: torch.Tensor | None = None  # the previous frame's flow input
 
-    def add(self, frame: ArrayLike) -> None:
+    def add(self, frame: ArrayLike, rows: tuple[int, int] | None = None) -> None:
         f = _tensor(frame)
         if f.shape != self.panorama.shape:
             raise ValueError(
                 f"frame {self.count} is {tuple(f.shape)}, panorama {tuple(self.panorama.shape)}"
             )
-        if not bool(torch.isfinite(f).all()):
+        first, end = (0, f.shape[0]) if rows is None or self.first is None else rows
+        band = slice(first, end)
+        if not bool(torch.isfinite(f[band]).all()):
             self.nonfinite += 1
             f = torch.nan_to_num(f, nan=0.0, posinf=1.0, neginf=0.0)
         self.seams.append(seam_error(f))
         self.poles.append(pole_error(f))
-        self.static_max = max(self.static_max, static_error(f, self.panorama, self.mask))
-        if self.previous is not None:
-            self.steps_moving.append(mean_abs_difference(self.previous, f, self.mask))
-            self.steps_static.append(mean_abs_difference(self.previous, f, self.static))
-            self.flows.append(region_flow(self.previous, f, self.mask))
+        error = static_error(f[band], self.panorama[band], self.mask[band])
+        self.static_max = max(self.static_max, error)
+        grey = self._flow_grey(f, first, end)
+        if self.previous is not None and self._flow_previous is not None:
+            moving = mean_abs_difference(self.previous[band], f[band], self.mask[band])
+            still = mean_abs_difference(self.previous[band], f[band], self.static[band])
+            # Outside the band the two frames are equal: the whole mean is the band's,
+            # scaled by the band's share of the mask's pixels.
+            self.steps_moving.append(moving * _share(self.mask, band))
+            self.steps_static.append(still * _share(self.static, band))
+            flow = optical_flow(self._flow_previous, grey)
+            self.flows.append(_mean_flow(flow, self._flow_mask, self._flow_factor))
         else:
             self.first = f
         self.previous = f
+        self._flow_previous = grey
         self.count += 1
+
+    def _flow_grey(self, frame: torch.Tensor, first: int, end: int) -> torch.Tensor:
+        """``_flow_grey`` of the frame: only the rows [first, end) of it, widened to whole
+        pooling cells, computed anew; the rest is the previous frame's."""
+        factor = self._flow_factor
+        if self._flow_previous is None or (first, end) == (0, frame.shape[0]):
+            return _flow_grey(frame, factor)
+        top, bottom = first // factor, -(-end // factor)
+        grey = self._flow_previous.clone()
+        grey[top:bottom] = _flow_grey(frame[top * factor : bottom * factor], factor)
+        return grey
 
     def result(self) -> dict[str, Any]:
         if self.count < 2 or self.first is None or self.previous is None:
@@ -304,9 +339,11 @@ def evaluate_frames(
     panorama: ArrayLike | str | os.PathLike[str],
     mask: ArrayLike | str | os.PathLike[str],
 ) -> dict[str, Any]:
-    """``animate_metrics`` of the frames in ``folder``; the panorama and mask may be arrays
-    or image paths (a mask file: white = moves)."""
-    from pano4d.images import read_image, read_mask, read_panorama
+    """``animate_metrics`` of the frames in ``folder`` (whole frames, or the animating
+    phase's store of frame boxes: ``animate.frames.open_frames``); the panorama and mask may
+    be arrays or image paths (a mask file: white = moves)."""
+    from pano4d.animate.frames import open_frames
+    from pano4d.images import read_mask, read_panorama
 
     if isinstance(panorama, str | os.PathLike):
         panorama = read_panorama(panorama)
@@ -314,11 +351,9 @@ def evaluate_frames(
     if isinstance(mask, str | os.PathLike):
         mask = read_mask(mask, pano.shape[1], pano.shape[0])
 
-    def frames() -> Iterator[np.ndarray]:
-        for path in frame_paths(folder):
-            yield read_image(path)[:, :, :3]
-
-    return animate_metrics(frames(), pano, mask)
+    paths = frame_paths(folder)
+    frames = open_frames(Path(folder), len(paths), paths[0].suffix)
+    return animate_metrics(frames.frames(), pano, mask)
 
 
 # --- novel views -------------------------------------------------------------------------
@@ -382,20 +417,29 @@ def _mask(mask: ArrayLike) -> torch.Tensor:
     return m.to(torch.bool)
 
 
-def _flow_inputs(
-    a: ArrayLike, b: ArrayLike, mask: ArrayLike
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, float]:
-    """Grey images and an eroded mask at most FLOW_MAX_WIDTH wide, and the pixel factor."""
-    ta, tb, m = _tensor(a), _tensor(b), _mask(mask)
-    grey = lambda t: t.mean(dim=-1) if t.ndim == 3 else t  # noqa: E731
-    ga, gb = grey(ta)[None, None], grey(tb)[None, None]
-    width = ga.shape[-1]
+def _flow_factor(height: int, width: int) -> int:
+    """The power of two that brings the frames to at most FLOW_MAX_WIDTH wide."""
     factor = 1
-    while width // factor > FLOW_MAX_WIDTH and ga.shape[-2] % (2 * factor) == 0:
+    while width // factor > FLOW_MAX_WIDTH and height % (2 * factor) == 0:
         factor *= 2
-    mf = m[None, None].float()
+    return factor
+
+
+def _flow_grey(image: torch.Tensor, factor: int) -> torch.Tensor:
+    """The grey image (H, W, C) or (H, W) the flow is measured on, pooled by ``factor``."""
+    grey = (image.mean(dim=-1) if image.ndim == 3 else image)[None, None]
+    return (F.avg_pool2d(grey, factor) if factor > 1 else grey)[0, 0]
+
+
+def _flow_mask(mask: torch.Tensor, factor: int) -> torch.Tensor:
+    """Where the flow is averaged: the mask pooled by ``factor`` and eroded by the window."""
+    mf = mask[None, None].float()
     if factor > 1:
-        ga, gb = F.avg_pool2d(ga, factor), F.avg_pool2d(gb, factor)
         mf = F.avg_pool2d(mf, factor)
-    inside = -F.max_pool2d(-mf, FLOW_WINDOW, stride=1, padding=FLOW_WINDOW // 2) >= 1.0
-    return ga[0, 0], gb[0, 0], inside[0, 0], float(factor)
+    return (-F.max_pool2d(-mf, FLOW_WINDOW, stride=1, padding=FLOW_WINDOW // 2) >= 1.0)[0, 0]
+
+
+def _share(mask: torch.Tensor, band: slice) -> float:
+    """The fraction of ``mask``'s True pixels that lie in the rows ``band`` (1 if none)."""
+    total = int(mask.sum())
+    return int(mask[band].sum()) / total if total else 1.0

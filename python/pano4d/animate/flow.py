@@ -35,6 +35,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from pano4d.animate.frames import FrameBox
 from pano4d.regions import Regions, angular_velocity_field
 from pano4d.smoothstep import smoothstep
 from pano4d.sphere import dir_to_equirect, equirect_directions
@@ -163,8 +164,10 @@ class FlowAnimator:
         return dirs
 
     # --- rendering -----------------------------------------------------------------------
-    def frame(self, t: int) -> torch.Tensor:
-        """Frame t (H, W, 3) float32; static pixels are the panorama's, bit for bit."""
+    def frame(self, t: int, box: FrameBox | None = None) -> torch.Tensor:
+        """Frame t (H, W, 3) float32, or only its pixels in ``box`` (rows, columns, 3)
+        (``pano4d.animate.frames``; the box must hold the blend); static pixels are the
+        panorama's, bit for bit. Only the blend's pixels are computed either way."""
         if not 0 <= t < self.frames:
             raise IndexError(f"frame {t} out of range for a {self.frames}-frame loop")
         height, width = self.regions.height, self.regions.width
@@ -172,7 +175,11 @@ class FlowAnimator:
         traces = _pad_sphere(torch.cat([self._backward[t], self._forward[t]]), 1)
         ahead = t / self.frames
         flat = self.panorama.reshape(-1, 3)
-        out = flat.clone()
+        if box is None:
+            out, shape = flat.clone(), (height, width, 3)
+        else:
+            cropped = box.crop(self.panorama.numpy())
+            out, shape = torch.from_numpy(cropped).reshape(-1, 3), cropped.shape
         blend = self.regions.blend.reshape(-1)
         for chunk in torch.split(self._pixels, CHUNK_PIXELS):
             u = (chunk % width).to(torch.float32) + 0.5
@@ -198,8 +205,9 @@ class FlowAnimator:
             spread = (1.0 - fade) ** 2 + fade**2 + 2.0 * fade * (1.0 - fade) * correlation
             moved = (mean + detail / spread.sqrt()).clamp(0.0, 1.0)
             weight = blend[chunk, None]
-            out[chunk] = weight * moved + (1.0 - weight) * original
-        return out.reshape(height, width, 3)
+            target = chunk if box is None else _index_in_box(chunk, width, box)
+            out[target] = weight * moved + (1.0 - weight) * original
+        return out.reshape(shape)
 
     def _sample_moving(self, dirs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """At directions (N, 3): the colour (N, 3) of the moving pixels there, completed by
@@ -215,6 +223,13 @@ class FlowAnimator:
 
 
 # --- helpers -----------------------------------------------------------------------------
+def _index_in_box(pixels: torch.Tensor, width: int, box: FrameBox) -> torch.Tensor:
+    """Flat indices in ``box``'s crop of flat pixel indices of the whole (·, width) image."""
+    rows = pixels // width - box.top
+    columns = (pixels % width - box.left) % width
+    return rows * box.count + columns
+
+
 def _push_pull(premultiplied: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
     """Fill a texture (C, h, w) known with weight ``coverage`` (h, w): the normalised values
     where coverage is full, blended towards coarser and coarser averages where it is not

@@ -5,14 +5,19 @@ cinemagraph animator; ``svd``: the Panoramic Denoiser with a diffusers model), c
 input into every pixel outside the soft region blend so static pixels are bit-identical,
 and writes (docs/design.md, "Files a run writes")::
 
-    output/animate/frames/0000.png …   16-bit PNG (32-bit float EXR for an EXR input)
+    output/animate/moving/static.png   the panorama as the frames hold it, once
+    output/animate/moving/box.json     the bounding box of the blend (columns wrap at u = W)
+    output/animate/moving/0000.png …   frame t inside that box (``pano4d.animate.frames``;
+                                       16-bit PNG, 32-bit float EXR for an EXR input)
     output/animate/video.mp4           8-bit preview, at most PREVIEW_MAX_WIDTH wide
     output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames, and
                                        the backend's own (svd: how it batched the UNet)
     output/animate/done.json           the inputs' hash: a finished run is skipped
 
-Every file is written atomically. ``run.json`` records the same hash when a run starts: a
-run killed part-way resumes from the first missing frame (the flow backend is
+Nothing outside the box is computed or written per frame: the flow backend warps only
+the blend's pixels (``FlowAnimator.frame(t, box)``). Every file is written atomically.
+``run.json`` records the same hash when a run starts: a run killed part-way resumes from
+the first missing frame (the flow backend is
 deterministic, so the frames it keeps are the frames it would write again; metrics.json
 and done.json record that frame as ``resumed_at``); with another config or another input
 the old frames are deleted first, once the new panorama and regions have been read.
@@ -35,10 +40,11 @@ import torch.nn.functional as F
 from rich.console import Console
 from rich.table import Table
 
+from pano4d.animate.frames import FrameBox, FrameStore, frame_suffix
 from pano4d.config import SceneConfig, config_hash
 from pano4d.errors import InputError
 from pano4d.fsutil import write_json_atomic
-from pano4d.images import read_image, read_panorama, write_image, write_video
+from pano4d.images import read_panorama, write_video
 from pano4d.metrics import VideoMetrics
 from pano4d.progress import Bars
 from pano4d.regions import Regions, build_regions
@@ -55,7 +61,7 @@ class AnimateResult:
     """Where the phase's outputs are, and what it measured."""
 
     folder: Path  # output/animate
-    frames: list[Path]
+    store: FrameStore  # the frames: output/animate/moving
     video: Path
     metrics: dict[str, Any]
     skipped: bool  # True when a finished run with the same inputs was found
@@ -67,6 +73,13 @@ def animate_folder(cfg: SceneConfig) -> Path:
     return Path(cfg.output) / "animate"
 
 
+def frame_store(cfg: SceneConfig) -> FrameStore:
+    """Where ``run_animate`` keeps the frames of ``cfg``."""
+    return FrameStore(
+        animate_folder(cfg) / "moving", cfg.animate.frames, frame_suffix(cfg.panorama)
+    )
+
+
 def run_animate(
     cfg: SceneConfig, progress: bool = True, on_step: Callable[[str, int], None] | None = None
 ) -> AnimateResult:
@@ -75,38 +88,39 @@ def run_animate(
     started = time.perf_counter()
     console = Console(stderr=True, quiet=not progress)
     folder = animate_folder(cfg)
-    frames_dir = folder / "frames"
-    suffix = ".exr" if Path(cfg.panorama).suffix.lower() == ".exr" else ".png"
+    store = frame_store(cfg)
     count = cfg.animate.frames
-    paths = [frames_dir / f"{t:04d}{suffix}" for t in range(count)]
     video = folder / "video.mp4"
     key = inputs_hash(cfg)
 
     done = _read_json(folder / "done.json")
-    if done.get("inputs_hash") == key and all(p.is_file() for p in paths) and video.is_file():
+    if done.get("inputs_hash") == key and store.complete() and video.is_file():
         metrics = _read_json(folder / "metrics.json")
         if metrics:
             console.print(f"[green]animate:[/] up to date in {folder}, skipped")
             print_metrics(console, metrics)
-            return AnimateResult(folder, paths, video, metrics, True, 0.0, count)
+            return AnimateResult(folder, store, video, metrics, True, 0.0, count)
 
     # Bad input (the panorama, the regions, the backend's weights) fails here, before
     # anything of an earlier run is deleted.
     panorama = read_panorama(cfg.panorama)
     height, width = panorama.shape[:2]
     regions = build_regions(cfg, width, height)
+    box = FrameBox.around(regions.blend > 0)
     run: dict[str, Any] = {"inputs_hash": key, "config_hash": config_hash(cfg)}
     previous = _read_json(folder / "run.json")
-    stale = previous.get("inputs_hash") != key
-    missing = [t for t, p in enumerate(paths) if stale or not p.is_file()]
+    stale = previous.get("inputs_hash") != key or not _same_box(store, box)
+    missing = [t for t, p in enumerate(store.paths) if stale or not p.is_file()]
     render = None
     if missing:
-        render, run["backend"] = _backend(cfg, panorama, regions)
+        render, run["backend"] = _backend(cfg, panorama, regions, box)
     elif "backend" in previous:
         run["backend"] = previous["backend"]  # what made the frames kept
 
     if stale:
-        for old in (frames_dir, folder / "done.json", folder / "metrics.json", video):
+        # frames/: whole frames of a run before the frames were stored as boxes.
+        old_frames = folder / "frames"
+        for old in (store.folder, old_frames, folder / "done.json", folder / "metrics.json", video):
             if old.is_dir():
                 shutil.rmtree(old)
             else:
@@ -117,16 +131,19 @@ def run_animate(
 
     resumed_at = missing[0] if missing else count
     if render is not None:
+        if not store.has_layout():
+            store.write_layout(panorama, box)
+        static_crop = box.crop(panorama)
+        blend_crop = box.crop(regions.blend.numpy()[:, :, None])[:, :, 0]
         with Bars(enabled=progress, console=console) as bars:
             task = bars.task(f"animate ({cfg.animate.backend})", count, count - len(missing))
             for t in missing:
-                frame = enforce_static(render(t), panorama, regions.blend)
-                write_image(paths[t], frame, bits=None if suffix == ".exr" else 16)
+                store.write_crop(t, enforce_static(render(t), static_crop, blend_crop))
                 task.advance()
                 if on_step is not None:
                     on_step("animate", t)
 
-    metrics = _write_video_and_measure(paths, video, panorama, regions, cfg.animate.fps)
+    metrics = _write_video_and_measure(store, video, panorama, regions, cfg.animate.fps)
     metrics["backend"] = cfg.animate.backend
     metrics.update(run.get("backend", {}))
     metrics["seconds"] = time.perf_counter() - started
@@ -138,16 +155,27 @@ def run_animate(
          "resumed_at": resumed_at},
     )  # fmt: skip
     print_metrics(console, metrics)
-    return AnimateResult(folder, paths, video, metrics, False, metrics["seconds"], resumed_at)
+    return AnimateResult(folder, store, video, metrics, False, metrics["seconds"], resumed_at)
+
+
+def _same_box(store: FrameStore, box: FrameBox) -> bool:
+    """Whether the store's frames are crops of ``box`` (True when it has none yet)."""
+    if not store.box_path.is_file():
+        return True
+    try:
+        return store.box() == box
+    except InputError:
+        return False
 
 
 def progress(cfg: SceneConfig) -> Literal["done", "started"] | None:
     """How far the phase got in ``cfg``'s output folder: "done" (done.json, which a rerun
-    checks against its inputs), "started" (frames written, not all), or None (nothing)."""
+    checks against its inputs), "started" (frames written, not all: in the frame store, or
+    whole frames put there by hand), or None (nothing)."""
     folder = animate_folder(cfg)
     if (folder / "done.json").is_file():
         return "done"
-    if any((folder / "frames").glob("*")):
+    if any((folder / "moving").glob("*")) or any((folder / "frames").glob("*")):
         return "started"
     return None
 
@@ -172,29 +200,29 @@ def inputs_hash(cfg: SceneConfig) -> str:
 
 
 def enforce_static(
-    frame: np.ndarray | torch.Tensor, panorama: np.ndarray, blend: torch.Tensor
+    frame: np.ndarray | torch.Tensor, panorama: np.ndarray, blend: np.ndarray
 ) -> np.ndarray:
-    """The frame with the panorama's own pixels wherever the blend weight is 0."""
+    """The frame with the panorama's own pixels wherever the blend weight is 0 (any same
+    part of the three: the whole image or the frame box)."""
     frame = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
     if frame.shape != panorama.shape:
         raise AnimateError(
             f"the backend made a frame of shape {frame.shape}, expected {panorama.shape}"
         )
-    moving = blend.numpy()[:, :, None] > 0
-    return np.where(moving, frame.astype(np.float32), panorama)
+    return np.where(blend[:, :, None] > 0, frame.astype(np.float32), panorama)
 
 
 # --- backends ----------------------------------------------------------------------------
 def _backend(
-    cfg: SceneConfig, panorama: np.ndarray, regions: Regions
+    cfg: SceneConfig, panorama: np.ndarray, regions: Regions, box: FrameBox
 ) -> tuple[Callable[[int], np.ndarray | torch.Tensor], dict[str, Any]]:
-    """A function from frame index to frame (H, W, 3) for the configured backend, and what
-    the backend reports for the metrics (svd: how it batched the UNet)."""
+    """A function from frame index to the frame's pixels in ``box`` for the configured
+    backend, and what the backend reports for the metrics (svd: how it batched the UNet)."""
     if cfg.animate.backend == "flow":
         from pano4d.animate.flow import FlowAnimator
 
         animator = FlowAnimator(torch.from_numpy(panorama), regions, cfg.animate.frames, cfg.seed)
-        return animator.frame, {}
+        return lambda t: animator.frame(t, box), {}
     if cfg.animate.backend == "svd":
         weights = cfg.animate.weights
         if weights is None or not Path(weights).is_dir():
@@ -216,21 +244,22 @@ def _backend(
         expected = (cfg.animate.frames, 3, *panorama.shape[:2])
         if tuple(video.shape) != expected:
             raise AnimateError(f"backend 'svd' returned {tuple(video.shape)}, expected {expected}")
-        return lambda t: video[t].permute(1, 2, 0).float().cpu(), made.batching
+        return lambda t: box.crop(video[t].permute(1, 2, 0).float().cpu().numpy()), made.batching
     raise AnimateError(f"unknown animate backend {cfg.animate.backend!r}")
 
 
 # --- outputs -----------------------------------------------------------------------------
 def _write_video_and_measure(
-    paths: list[Path], video: Path, panorama: np.ndarray, regions: Regions, fps: float
+    store: FrameStore, video: Path, panorama: np.ndarray, regions: Regions, fps: float
 ) -> dict[str, Any]:
-    """Read the frames back once: encode the preview and measure them on the way."""
+    """Read the frames back once (whole, as a user gets them): encode the preview and
+    measure them on the way."""
     metrics = VideoMetrics(panorama, regions.mask)
+    box = store.box()
 
     def frames() -> Iterator[np.ndarray]:
-        for path in paths:
-            frame = read_image(path)[:, :, :3]
-            metrics.add(frame)
+        for frame in store.frames():
+            metrics.add(frame, rows=(box.top, box.bottom))  # the rest is the static panorama
             yield _preview(frame)
 
     write_video(video, frames(), fps)

@@ -32,15 +32,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pano4d.animate.frames import frame_suffix, open_frames
 from pano4d.camera import Camera
 from pano4d.config import OptimisationKnobs, PresetKnobs, SceneConfig
 from pano4d.device import resolve_device
 from pano4d.gaussians import Gaussians
-from pano4d.images import read_image
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.convergence import StopRule
@@ -118,31 +117,11 @@ def working_size(width: int, view_size: int, fov_deg: float) -> tuple[int, int]:
     return w, w // 2
 
 
-def read_frames(
-    folder: Path, count: int, size: tuple[int, int], suffix: str = ".png"
-) -> torch.Tensor:
-    """The animation frames (L, H, W, 3) area-downsampled to ``size`` (W, H)."""
-    frames = []
-    for t in range(count):
-        path = folder / f"{t:04d}{suffix}"
-        if not path.is_file():
-            raise TrainError(f"{path}: animation frame missing (run `pano4d animate` again)")
-        image = torch.from_numpy(np.ascontiguousarray(read_image(path)[..., :3]))
-        frames.append(_resize(image, size))
-    return torch.stack(frames)
-
-
-def _resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    w, h = size
-    if image.shape[:2] == (h, w):
-        return image.to(torch.float32)
-    x = image.permute(2, 0, 1)[None].to(torch.float32)
-    return F.interpolate(x, size=(h, w), mode="area")[0].permute(1, 2, 0).contiguous()
-
-
-def frame_suffix(cfg: SceneConfig) -> str:
-    """The animating phase writes EXR frames for an EXR panorama, PNG otherwise."""
-    return ".exr" if Path(cfg.panorama).suffix.lower() == ".exr" else ".png"
+def read_frames(folder: Path, count: int, size: tuple[int, int], suffix: str) -> torch.Tensor:
+    """The animation frames in ``folder`` (the animating phase's store or whole frames put
+    there by hand: ``animate.frames.open_frames``) as (L, H, W, 3) area-downsampled to
+    ``size`` (W, H)."""
+    return open_frames(folder, count, suffix).area_downsampled(size)
 
 
 def moving_region(
@@ -161,9 +140,8 @@ def prepare(
     cfg: SceneConfig, frames_dir: Path, render_backend: str, trainer: str
 ) -> LiftInputs:
     """The frames at the working resolution and what moves in them (``moving_region``)."""
-    suffix = frame_suffix(cfg)
-    first = read_image(frames_dir / f"0000{suffix}")
-    full_h, full_w = first.shape[:2]
+    suffix = frame_suffix(cfg.panorama)
+    full_w, full_h = open_frames(frames_dir, cfg.animate.frames, suffix).size()
     knobs = cfg.resolved_preset(full_w)
     size = working_size(full_w, knobs.view_size, cfg.lift.fov_deg)
     frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
