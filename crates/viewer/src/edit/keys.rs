@@ -1,21 +1,32 @@
 //! The keyboard shortcuts (undo, redo, save, delete) and the guard against closing the
 //! window with unsaved changes.
 
-use eframe::egui::{self, Key};
+use eframe::egui::{self, Key, KeyboardShortcut, Modifiers};
 
 use super::app::EditorApp;
+
+const UNDO: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::Z);
+const REDO: KeyboardShortcut =
+    KeyboardShortcut::new(Modifiers::COMMAND.plus(Modifiers::SHIFT), Key::Z);
+const REDO_Y: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::Y);
+const SAVE: KeyboardShortcut = KeyboardShortcut::new(Modifiers::COMMAND, Key::S);
 
 impl EditorApp {
     pub(super) fn handle_keys(&mut self, ctx: &egui::Context) {
         if ctx.egui_wants_keyboard_input() || self.working() {
             return;
         }
-        let (undo, redo, save, delete) = ctx.input(|i| {
-            let command = i.modifiers.command;
+        // Each shortcut is matched against the modifiers its own key event carried, not
+        // `i.modifiers` (those held at the end of the frame): a ctrl+S typed fast, or sent
+        // by `xdotool key ctrl+s`, presses and releases ctrl within one frame, and then the
+        // frame's modifiers no longer have ctrl. Redo is taken first: ctrl+shift+Z also
+        // matches ctrl+Z (extra shift is ignored).
+        let (redo, undo, save, delete) = ctx.input_mut(|i| {
+            let redo = i.consume_shortcut(&REDO) || i.consume_shortcut(&REDO_Y);
             (
-                command && !i.modifiers.shift && i.key_pressed(Key::Z),
-                command && (i.key_pressed(Key::Y) || (i.modifiers.shift && i.key_pressed(Key::Z))),
-                command && i.key_pressed(Key::S),
+                redo,
+                i.consume_shortcut(&UNDO),
+                i.consume_shortcut(&SAVE),
                 i.key_pressed(Key::Delete),
             )
         });
