@@ -511,3 +511,46 @@ fn the_window_draws_while_python_opens_and_saves() {
     assert_eq!(read_back(&scene).len(), 2);
     assert!(!harness.state().unsaved());
 }
+
+/// A shortcut as `xdotool key ctrl+s` (or fast typing) delivers it: ctrl down, the key
+/// down and up, ctrl up, all in one frame, so ctrl is no longer held when the frame runs.
+fn shortcut_in_one_frame(harness: &mut Harness<'static, EditorApp>, key: egui::Key) {
+    // What egui-winit sends for ctrl on Linux.
+    let ctrl = egui::Modifiers::CTRL.plus(egui::Modifiers::COMMAND);
+    let event = |pressed, modifiers| egui::Event::Key {
+        key,
+        pressed,
+        modifiers,
+        repeat: false,
+        physical_key: None,
+    };
+    harness.input_mut().events.extend([
+        egui::Event::ModifiersChanged(ctrl),
+        event(true, ctrl),
+        event(false, ctrl),
+        egui::Event::ModifiersChanged(egui::Modifiers::NONE),
+    ]);
+    harness.step();
+    harness.run();
+}
+
+#[test]
+fn ctrl_s_and_ctrl_z_work_when_ctrl_is_released_within_the_frame() {
+    let (_dir, scene, mut harness) = editor("shortcuts");
+    choose(&mut harness, "Box");
+    drag_px(&mut harness, [10.0, 10.0], [60.0, 40.0]);
+    shortcut_in_one_frame(&mut harness, egui::Key::S);
+    assert!(harness.state().working(), "ctrl+S started a save");
+    settle(&mut harness);
+    let status = harness.state().status();
+    assert!(status.starts_with("Saved"), "{status}");
+    assert_eq!(read_back(&scene).len(), 2);
+    drag_px(&mut harness, [100.0, 100.0], [160.0, 140.0]);
+    assert_eq!(harness.state().document().unwrap().regions.len(), 3);
+    shortcut_in_one_frame(&mut harness, egui::Key::Z);
+    assert_eq!(
+        harness.state().document().unwrap().regions.len(),
+        2,
+        "ctrl+Z undid the box"
+    );
+}

@@ -1,5 +1,6 @@
 //! The editor's link to the pano4d Python package, the one owner of scene.yaml:
-//! `python -m pano4d.cli regions show | save | preview` (python/pano4d/region_edit.py).
+//! `python -m pano4d.cli regions show | save | preview` (the commands in
+//! python/pano4d/region_cli.py, the file work in python/pano4d/region_edit.py).
 //! Regions travel as JSON in scene.yaml's own keys; painted masks as PNG files.
 
 use std::ffi::OsStr;

@@ -12,7 +12,7 @@ use glam::{DQuat, DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 use splat_core::camera::{dir_to_equirect, equirect_to_dir};
 
-/// scene.yaml's motion hint, and its default when a region has none (Python's `Motion()`).
+/// scene.yaml's motion hint, and its default when a region has none (`pano4d.config.Motion()`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Motion {
     /// In the image: 0 = towards +u, 90 = towards the zenith.
@@ -26,7 +26,8 @@ pub const DEFAULT_MOTION: Motion = Motion {
     speed: 0.5,
 };
 
-/// The side of a click region's square when scene.yaml gives no `size` (Python's default).
+/// The side of a click region's square when scene.yaml gives no `size` (the default of
+/// `pano4d.config.Region.pixel_box`).
 pub const DEFAULT_CLICK_SIZE: f64 = 256.0;
 
 /// A box [u0, v0, u1, v1] in panorama pixels; `u0 > u1` crosses the seam.
@@ -79,7 +80,7 @@ impl PixelBox {
         }
     }
 
-    /// Whether the pixel centre (u, v) lies in the box: Python's `Region.to_mask` rule.
+    /// Whether the pixel centre (u, v) lies in the box: `pano4d.regions.region_mask`'s rule.
     pub fn contains(&self, u: f64, v: f64) -> bool {
         let in_u = if self.wraps() {
             u >= self.u0 || u < self.u1
@@ -170,7 +171,7 @@ impl Mask {
     }
 
     /// The mask at panorama pixel coordinates (u, v) of a `width`×`height` panorama
-    /// (nearest pixel, as Python's `read_mask` resizes).
+    /// (nearest pixel, as `pano4d.images.read_mask` resizes).
     pub fn at(&self, u: f64, v: f64, width: u32, height: u32) -> bool {
         let x = (u.rem_euclid(width as f64) * self.width as f64 / width as f64) as u32;
         let y = (v * self.height as f64 / height as f64) as i64;
@@ -286,7 +287,7 @@ impl Region {
     }
 }
 
-/// The square box a click grows into: Python's `Region.pixel_box` for a click.
+/// The square box a click grows into: `pano4d.config.Region.pixel_box` for a click.
 pub fn click_box(at: DVec2, size: f64, width: u32, height: u32) -> PixelBox {
     let (w, h) = (width as f64, height as f64);
     let half = size / 2.0;
@@ -465,7 +466,7 @@ impl Document {
     }
 
     /// Region `index`'s rigid rotation Ω in radians per frame, as the animator builds it
-    /// (`pano4d.animate.regions.region_angular_velocity`): direction 0 turns about −z
+    /// (`pano4d.regions.region_angular_velocity`): direction 0 turns about −z
     /// (towards +u), 90 lifts the region's mean azimuth towards the zenith.
     pub fn angular_velocity(&self, index: usize) -> DVec3 {
         let motion = self.regions[index].motion_or_default();
