@@ -183,7 +183,7 @@ def run_ours(views: Path, steps: int, densify: bool, out: Path, knobs_json: str)
     out.json (seconds per step after the first, the Gaussian count)."""
     from pano4d.lift.optimize import Knobs, TrainViews
     from pano4d.lift.resident import ResidentTrainer
-    from pano4d.render import render
+    from pano4d.renderer import render
 
     data = json.loads((views / "transforms.json").read_text())
     preset = json.loads(knobs_json)
@@ -302,7 +302,7 @@ def novel_psnr(ply: str, panorama: Path) -> dict[str, float]:
     """PSNR at gt/views.json's t = 0 cameras (1 % and 5 % displaced), rendered by ours."""
     from pano4d.lift.export import read_gt_views
     from pano4d.metrics import novel_view_metrics
-    from pano4d.render import render
+    from pano4d.renderer import render
 
     views = [v for v in read_gt_views(panorama) if int(v["time"]) == 0]
     scene = StaticScene(ply4d.read_ply(ply))

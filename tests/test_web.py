@@ -28,7 +28,7 @@ from pano4d_process import error_line, pano4d
 from pano4d import ply4d, web
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians, rgb_to_sh_dc
-from pano4d.render import render
+from pano4d.renderer import render
 
 WIDTH, HEIGHT = 640, 360
 # SwiftShader's splats against pano4d's rasteriser, SH-0 colour, measured 2026-11-24: see

@@ -503,7 +503,11 @@ def fit_dynamic(
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
         log = logs[t]
-        rule = StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])
+        rule = (
+            StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])
+            if inputs.knobs.stop_when_converged
+            else StopRule.fixed(iterations)
+        )
         done.append(
             run_trainer(
                 trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved, rule
