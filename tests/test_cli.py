@@ -87,9 +87,15 @@ def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
     )
     for name in ("panorama.png", "depth.exr", "mask.png", "scene.yaml", "gt/views.json"):
         assert (out / name).exists(), name
-    result = runner.invoke(app, ["animate", str(out / "scene.yaml")])
+    whole = tmp_path / "whole"
+    result = runner.invoke(
+        app, ["animate", str(out / "scene.yaml"), "--frames-out", str(whole)]
+    )
     assert result.exit_code == 0, result.output
-    frames = sorted((out / "output" / "animate" / "frames").glob("*.png"))
+    # The frame store: the static panorama once and each frame's moving box.
+    crops = sorted((out / "output" / "animate" / "moving").glob("0*.png"))
+    assert len(crops) == 3
+    frames = sorted(whole.glob("*.png"))
     assert len(frames) == 3
     assert images.read_image(frames[1]).shape == (256, 512, 3)
     evaluated = runner.invoke(app, ["eval", str(out / "scene.yaml")])
