@@ -190,6 +190,7 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
     from pano4d.renderer import render
+    from pano4d.sphere import equirect_directions
     from pano4d.synth.scene import SCENE_KINDS
     from pano4d.synth.views import median_scene_depth, render_view
 
@@ -198,8 +199,6 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
     scene = ply4d.read(output / "scene.ply4d")
     gen = torch.Generator().manual_seed(seed + 4242)
     # Directions that see what moves: the moving pixels of a small panorama.
-    from pano4d.sphere import equirect_directions
-
     dirs = equirect_directions(256, 128).view(-1, 3)
     moving_dirs = dirs[world.moves(world.cast(torch.zeros(3), dirs).label)]
     out = []
