@@ -157,6 +157,16 @@ def steps_taken(output: Path) -> dict[str, int]:
     return steps
 
 
+def window_share(output: Path) -> float:
+    """The share of the views' pixels a dynamic step rendered (lift/windows.py), mean over
+    the timestamps; 1 where whole views were rendered (code before the windows, or the knob
+    ``dynamic_windows`` off)."""
+    data = json.loads((output / "losses.json").read_text())
+    shares = [float(opt.get("window_share", 1.0)) for opt in data["optimisations"]
+              if opt["name"] != "static"]  # fmt: skip
+    return float(np.mean(shares)) if shares else 1.0
+
+
 def moving_share(scene_yaml: Path, output: Path) -> float:
     """Moving pixels over all pixels of the views that see motion (what a dynamic step
     renders today, against what can change)."""
@@ -243,6 +253,7 @@ def measure(variant: Variant, case: dict[str, Any]) -> dict[str, Any]:
         "step_ratio": (per_step["dynamic"] / per_step["static"])
         if per_step["dynamic"] and per_step["static"] else None,
         "moving_share": moving_share(Path(case["scene"]), output),
+        "window_share": window_share(output),
         "gaussians": metrics["gaussians"],
     }
     if case["kind"] != "lake":
@@ -358,7 +369,8 @@ def main() -> None:
 
 
 HEADER = (f"{'case':<40}{'variant':>8}{'static s':>9}{'dyn s':>8}{'dyn/st':>7}"
-          f"{'steps st':>9}{'steps dyn':>10}{'step x':>7}{'moving':>7}{'PSNR mv':>8}")  # fmt: skip
+          f"{'steps st':>9}{'steps dyn':>10}{'step x':>7}{'moving':>7}{'window':>7}"
+          f"{'PSNR mv':>8}")  # fmt: skip
 
 
 def print_row(r: dict[str, Any]) -> None:
@@ -366,7 +378,8 @@ def print_row(r: dict[str, Any]) -> None:
     print(f"{r['case']:<40}{r['variant']:>8}{r['timings_s']['static']:>9.1f}"
           f"{r['timings_s']['dynamic']:>8.1f}{r['dynamic_over_static']:>7.2f}"
           f"{r['steps']['static']:>9}{r['steps']['dynamic']:>10}"
-          f"{r['step_ratio'] or math.nan:>7.2f}{r['moving_share']:>7.2f}{psnr:>8.2f}",
+          f"{r['step_ratio'] or math.nan:>7.2f}{r['moving_share']:>7.2f}"
+          f"{r.get('window_share', 1.0):>7.2f}{psnr:>8.2f}",
           flush=True)  # fmt: skip
 
 

@@ -107,7 +107,7 @@ def worker(job: dict) -> dict:
     import numpy as np
 
     from pano4d.camera import Camera
-    from pano4d.extension import core
+    from pano4d.extension import camera_arrays, core
     from pano4d.renderer import adapter_info
 
     g = scene(job["n"], job["sh_degree"])
@@ -119,8 +119,7 @@ def worker(job: dict) -> dict:
         # The intersection count, through the extension (pano4d.render does not show it).
         arrays = [np.ascontiguousarray(t.reshape(-1).numpy()) for t in g.tensors().values()]
         _, result["intersections"] = core().render_forward(
-            *arrays, cam.K.numpy(), cam.world_to_cam[:3].numpy(), cam.width, cam.height,
-            (0.0, 0.0, 0.0), False)
+            *arrays, *camera_arrays(cam), cam.width, cam.height, (0.0, 0.0, 0.0), False)
         _, fb = frame_fns(g, cam, "wgpu")
         result["forward_backward_ms"] = 1e3 * time_call(fb, job["repeats"], job["warm_up"])
     except (RuntimeError, ValueError) as e:

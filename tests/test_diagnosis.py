@@ -151,6 +151,13 @@ def test_a_run_writes_its_diagnosis_beside_metrics_json(scene_dir: Path, tmp_pat
     assert starts["dynamic t=1"] == stored[1] and starts["dynamic t=2"] == stored[2]
     # Loss terms every LOG_EVERY steps and at the last, L_temporal only once there is a t − 1.
     assert [o["name"] for o in losses["optimisations"]] == names
+    # What a step rendered: the static stage whole views alone, a dynamic step its windows
+    # (lift/windows.py) with part of the static set.
+    assert (losses["optimisations"][0]["window_share"], losses["optimisations"][0]["context"]) == (
+        1.0, 0,
+    )  # fmt: skip
+    for o in losses["optimisations"][1:]:
+        assert 0 < o["window_share"] <= 1 and 0 < o["context"] <= stored[0], o["name"]
     for o in losses["optimisations"]:
         last = DENSIFYING["gaussian_iterations"] // (1 if o["name"] in names[:2] else 2)
         assert [r["step"] for r in o["losses"]] == list(range(LOG_EVERY, last + 1, LOG_EVERY))

@@ -19,6 +19,7 @@ from pano4d.camera import Camera
 from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import (
+    OUTSIDE_SUMS,
     GaussianTrainer,
     Knobs,
     TrainViews,
@@ -91,6 +92,7 @@ def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> A
         targets.append((
             *camera_arrays(c), c.width, c.height, flat(views.targets[i]), flat(views.weights[i]),
             flat(views.depth[i]), previous, float(views.weights[i].sum().clamp(min=1e-6)),
+            [0.0] * len(OUTSIDE_SUMS),
         ))  # fmt: skip
     defaults = train_settings(Knobs(iterations=1))
     l1, ssim, temporal, geo = lambdas

@@ -57,6 +57,9 @@ class Camera:
     world_to_cam: torch.Tensor
     width: int
     height: int
+    # tan of the half field of view of the view this camera is a window of (``window``);
+    # None for a whole view. The EWA Jacobian's clamp reads it (``half_fov_tan``).
+    view_half_fov_tan: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         self.K = torch.as_tensor(self.K, dtype=torch.float64).reshape(3, 3)
@@ -128,6 +131,22 @@ class Camera:
     def cy(self) -> float:
         return float(self.K[1, 2])
 
+    @property
+    def half_fov_tan(self) -> tuple[float, float]:
+        """tan of the half field of view (x, y) of the whole view: a window keeps its
+        view's, so that it renders the view's pixels, not those of a narrower camera."""
+        if self.view_half_fov_tan is not None:
+            return self.view_half_fov_tan
+        return (0.5 * self.width / self.fx, 0.5 * self.height / self.fy)
+
+    def window(self, x0: int, y0: int, width: int, height: int) -> Camera:
+        """The ``width``×``height`` pixels of this camera's image from pixel (``x0``, ``y0``)
+        on, as a camera of their own: the same pixels (the principal point moves)."""
+        K = self.K.clone()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        return Camera(K, self.world_to_cam, width, height, self.half_fov_tan)
+
     def fov_deg(self) -> tuple[float, float]:
         """Horizontal and vertical field of view in degrees."""
         return (
@@ -193,16 +212,23 @@ class Camera:
 
     # --- serialisation (gt/views.json, viewer poses) ------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {
             "K": self.K.tolist(),
             "world_to_cam": self.world_to_cam[:3].tolist(),
             "width": self.width,
             "height": self.height,
         }
+        if self.view_half_fov_tan is not None:
+            d["view_half_fov_tan"] = list(self.view_half_fov_tan)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Camera:
         missing = {"K", "world_to_cam", "width", "height"} - set(d)
         if missing:
             raise ValueError(f"camera is missing keys {sorted(missing)}")
-        return cls(d["K"], d["world_to_cam"], d["width"], d["height"])
+        tan = d.get("view_half_fov_tan")
+        return cls(
+            d["K"], d["world_to_cam"], d["width"], d["height"],
+            None if tan is None else (float(tan[0]), float(tan[1])),
+        )  # fmt: skip

@@ -134,6 +134,10 @@ class StageKnobs(BaseModel):
     gaussian_iterations: int  # optimisation steps per timestamp
     max_gaussians: int  # the budget: static plus one timestamp's dynamic set
     sh_degree: int  # spherical-harmonics degree of the Gaussians' colour
+    # A dynamic step renders only the window of each view that the dynamic set can reach,
+    # with the static Gaussians that can draw into it (lift/windows.py: the same loss and
+    # gradient as the whole view's); false renders whole views, to compare.
+    dynamic_windows: bool = True
 
 
 class PresetKnobs(OptimisationKnobs, StageKnobs):

@@ -36,10 +36,12 @@ def flat(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
 
 
-def camera_arrays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """A camera's intrinsics K (3×3) and world-to-camera rows (3×4), float64, as the
-    extension takes them (its size goes separately where the call needs it)."""
+def camera_arrays(camera: Camera) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """A camera's intrinsics K (3×3), world-to-camera rows (3×4), float64, and the tan of
+    its view's half field of view, as the extension takes them (its size goes separately
+    where the call needs it)."""
     return (
         np.ascontiguousarray(camera.K.numpy()),
         np.ascontiguousarray(camera.world_to_cam[:3].numpy()),
+        camera.half_fov_tan,
     )

@@ -5,7 +5,8 @@ and differentiable by autograd; it exists to check ``backend="wgpu"`` (values an
 gradients), not for speed. The rules (docs/rasterizer.md) are shared with the WGSL
 kernels (``crates/splat-core/src/raster/**/*.wgsl``):
 
-- EWA projection with the Jacobian's x/z, y/z clamped to 1.3·tan(half fov), a 0.3 px²
+- EWA projection with the Jacobian's x/z, y/z clamped to 1.3·tan(half fov) (the view's,
+  ``Camera.half_fov_tan``: a window of a view keeps it), a 0.3 px²
   low-pass, optional antialiasing (opacity · sqrt(det Σ / det(Σ + 0.3 I)));
 - culled: any non-finite parameter, camera z < 0.01, det(Σ + 0.3 I) <= 0, opacity
   < 1/255; zero quaternions (|q|² < 1e-12) become the identity; log-scales are clamped
@@ -101,8 +102,9 @@ def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype)
     z = t[:, 2]
     visible = finite & (z >= NEAR_PLANE)
     rz = 1.0 / torch.where(visible, z, torch.ones_like(z))
-    lim_x = JACOBIAN_CLAMP * 0.5 * camera.width / camera.fx
-    lim_y = JACOBIAN_CLAMP * 0.5 * camera.height / camera.fy
+    tan_x, tan_y = camera.half_fov_tan
+    lim_x = JACOBIAN_CLAMP * tan_x
+    lim_y = JACOBIAN_CLAMP * tan_y
     u = torch.clamp(t[:, 0] * rz, -lim_x, lim_x)
     v = torch.clamp(t[:, 1] * rz, -lim_y, lim_y)
     zero = torch.zeros_like(rz)

@@ -67,6 +67,10 @@ pub struct Camera {
     pub translation: DVec3,
     pub width: u32,
     pub height: u32,
+    /// tan of the half field of view (x, y) of the whole view: what the EWA Jacobian's clamp
+    /// reads. A [`Camera::window`] keeps its view's, so that a window renders the view's
+    /// pixels, not those of a narrower camera.
+    pub half_fov_tan: DVec2,
 }
 
 impl Camera {
@@ -90,6 +94,7 @@ impl Camera {
             translation: -(rotation * position),
             width,
             height,
+            half_fov_tan: DVec2::new(0.5 * width as f64 / fx, 0.5 * height as f64 / fx),
         }
     }
 
@@ -109,6 +114,19 @@ impl Camera {
             translation: DVec3::new(w2c[0][3], w2c[1][3], w2c[2][3]),
             width,
             height,
+            half_fov_tan: DVec2::new(0.5 * width as f64 / k[0][0], 0.5 * height as f64 / k[1][1]),
+        }
+    }
+
+    /// The `width`×`height` pixels of this camera's image from pixel (`x0`, `y0`) on, as a
+    /// camera of their own: the same pixels (the principal point moves, the clamp stays).
+    pub fn window(&self, x0: u32, y0: u32, width: u32, height: u32) -> Self {
+        Self {
+            cx: self.cx - x0 as f64,
+            cy: self.cy - y0 as f64,
+            width,
+            height,
+            ..*self
         }
     }
 

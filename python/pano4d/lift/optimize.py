@@ -66,16 +66,47 @@ class FeatureModel(Protocol):
         ...
 
 
+# The loss sums over the pixels of a view outside the window a step renders (``TrainViews.
+# outside``; lift.windows computes them): Σ w·mean|x − t|, Σ w·SSIM, Σ w·mean|x − prev|,
+# L_geo's covered weight Σ c, the means of the rendered and of Θ's depth over it, and the
+# sums Σ c·da², Σ c·db², Σ c·da·db about those means. The device's LossParams has them in
+# this order (crates/splat-core/src/train/losses.rs, OUTSIDE_SUMS).
+OUTSIDE_SUMS = (
+    "l1", "ssim", "temporal", "covered", "mean_depth", "mean_target_depth",
+    "var_depth", "var_target_depth", "cov_depth",
+)  # fmt: skip
+
+
 @dataclass
 class TrainViews:
     """What one optimisation sees: cameras and, per view, target (h, w, 3), loss weight
-    (h, w) and Θ's z-depth (h, w); ``previous`` holds renders of G_{t−1} for L_temporal."""
+    (h, w) and Θ's z-depth (h, w); ``previous`` holds renders of G_{t−1} for L_temporal.
+
+    The cameras may be windows of larger views (``Camera.window``: a dynamic step renders
+    only the pixels the moving region reaches, lift.windows). Then ``weight_sums`` (V,)
+    holds the whole views' loss normalisers and ``outside`` (V, len(OUTSIDE_SUMS)) the loss
+    sums over the rest of each view, so that the loss and its gradient are the whole
+    view's. Views may then differ in size: the tensors hold lists."""
 
     cameras: list[Camera]
-    targets: torch.Tensor
-    weights: torch.Tensor
-    depth: torch.Tensor
-    previous: torch.Tensor | None = None
+    targets: torch.Tensor | list[torch.Tensor]
+    weights: torch.Tensor | list[torch.Tensor]
+    depth: torch.Tensor | list[torch.Tensor]
+    previous: torch.Tensor | list[torch.Tensor] | None = None
+    weight_sums: torch.Tensor | None = None
+    outside: torch.Tensor | None = None
+
+    def weight_sum(self, index: int) -> torch.Tensor:
+        """The loss normaliser of view ``index``: max(Σ weight, 1e-6) over the whole view."""
+        if self.weight_sums is not None:
+            return self.weight_sums[index]
+        return self.weights[index].sum().clamp(min=1e-6)
+
+    def outside_sums(self, index: int) -> torch.Tensor:
+        """OUTSIDE_SUMS of view ``index`` (zeros: the view is whole)."""
+        if self.outside is not None:
+            return self.outside[index]
+        return torch.zeros(len(OUTSIDE_SUMS), device=self.weights[index].device)
 
 
 class Knobs(OptimisationKnobs):
@@ -101,12 +132,9 @@ def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
     }
 
 
-def ssim_loss(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """1 − weighted mean SSIM of (h, w, 3) images.
-
-    Pixels of weight 0 take no part: an 11-pixel window reaches across the mask's edge, so
-    there the rendered value stands in for the target and carries no gradient. Otherwise the
-    static set would learn from what the moving region shows (tests/test_split.py)."""
+def ssim_map(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """The (h, w) SSIM map of (h, w, 3) images, averaged over the channels; pixels of weight
+    0 take no part (``ssim_loss``)."""
     import kornia
 
     unsupervised = (weight <= 0)[..., None]
@@ -114,18 +142,46 @@ def ssim_loss(rendered: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
     rendered = torch.where(unsupervised, fixed, rendered)
     target = torch.where(unsupervised, fixed, target)
     window = min(SSIM_WINDOW, (min(rendered.shape[:2]) // 2) * 2 - 1)
-    ssim_map = kornia.metrics.ssim(
+    return kornia.metrics.ssim(
         rendered.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], window
     )[0].mean(0)
-    return 1.0 - (ssim_map * weight).sum() / weight.sum().clamp(min=1e-6)
 
 
-def pearson_loss(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """1 − weighted Pearson correlation of two maps."""
-    w = weight / weight.sum().clamp(min=1e-6)
-    da, db = a - (w * a).sum(), b - (w * b).sum()
-    cov = (w * da * db).sum()
-    return 1.0 - cov / ((w * da * da).sum() * (w * db * db).sum()).clamp(min=1e-12).sqrt()
+def ssim_loss(
+    rendered: torch.Tensor,
+    target: torch.Tensor,
+    weight: torch.Tensor,
+    weight_sum: torch.Tensor | None = None,
+    outside: torch.Tensor | float = 0.0,
+) -> torch.Tensor:
+    """1 − weighted mean SSIM of (h, w, 3) images (over a whole view of ``weight_sum`` and
+    Σ w·SSIM ``outside`` these pixels when they are a window of it).
+
+    Pixels of weight 0 take no part: an 11-pixel window reaches across the mask's edge, so
+    there the rendered value stands in for the target and carries no gradient. Otherwise the
+    static set would learn from what the moving region shows (tests/test_split.py)."""
+    if weight_sum is None:
+        weight_sum = weight.sum().clamp(min=1e-6)
+    return 1.0 - ((ssim_map(rendered, target, weight) * weight).sum() + outside) / weight_sum
+
+
+def pearson_loss(
+    a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor, outside: torch.Tensor | None = None
+) -> torch.Tensor:
+    """1 − weighted Pearson correlation of two maps; ``outside``: OUTSIDE_SUMS[3:] (covered
+    weight, means, centred sums) of the rest of the view when the maps are a window of it."""
+    co, mean_a, mean_b, var_a, var_b, cov_ab = (
+        [torch.zeros((), dtype=a.dtype, device=a.device)] * 6 if outside is None else outside
+    )
+    covered = (weight.sum() + co).clamp(min=1e-6)
+    ma = ((weight * a).sum() + co * mean_a) / covered
+    mb = ((weight * b).sum() + co * mean_b) / covered
+    da, db = a - ma, b - mb
+    ea, eb = mean_a - ma, mean_b - mb  # the outside means about the view's
+    cov = ((weight * da * db).sum() + cov_ab + co * ea * eb) / covered
+    va = ((weight * da * da).sum() + var_a + co * ea * ea) / covered
+    vb = ((weight * db * db).sum() + var_b + co * eb * eb) / covered
+    return 1.0 - cov / (va * vb).clamp(min=1e-12).sqrt()
 
 
 def sem_alpha(step: int, iterations: int) -> float:
@@ -231,7 +287,7 @@ def moved_camera(camera: Camera, offset: torch.Tensor) -> Camera:
     """The same camera translated by ``offset`` (3,) in world space."""
     w2c = camera.world_to_cam.clone()
     w2c[:3, 3] = w2c[:3, 3] - camera.R @ offset.to(torch.float64)
-    return Camera(camera.K, w2c, camera.width, camera.height)
+    return Camera(camera.K, w2c, camera.width, camera.height, camera.view_half_fov_tan)
 
 
 class Trainer(ABC):
@@ -378,19 +434,21 @@ class GaussianTrainer(Trainer):
         out = self.render_fn(self._scene(), camera, self.background)
         rgb, depth = out.rgb, out.depth
         target, weight = v.targets[index], v.weights[index]
-        wsum = weight.sum().clamp(min=1e-6)
-        l1 = ((rgb - target).abs().mean(-1) * weight).sum() / wsum
-        d_ssim = ssim_loss(rgb, target, weight)
+        wsum, outside = v.weight_sum(index), v.outside_sums(index)
+        l1 = (((rgb - target).abs().mean(-1) * weight).sum() + outside[0]) / wsum
+        d_ssim = ssim_loss(rgb, target, weight, wsum, outside[1])
         loss = (1 - k.lambda_dssim) * l1 + k.lambda_dssim * d_ssim
         terms = {"l1": l1, "d_ssim": d_ssim}
         if k.lambda_temporal > 0 and v.previous is not None:
-            temporal = ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() / wsum
+            temporal = (
+                ((rgb - v.previous[index]).abs().mean(-1) * weight).sum() + outside[2]
+            ) / wsum
             loss = loss + k.lambda_temporal * temporal
             terms["temporal"] = temporal
         if k.lambda_geo > 0:
             covered = weight * (out.alpha.detach() > 0.5)
-            if covered.sum() > 16:
-                terms["geo"] = pearson_loss(depth, v.depth[index], covered)
+            if covered.sum() + outside[3] > 16:
+                terms["geo"] = pearson_loss(depth, v.depth[index], covered, outside[3:])
                 loss = loss + k.lambda_geo * terms["geo"]
         alpha = sem_alpha(self.step, k.iterations)
         if k.lambda_sem > 0 and self.features is not None and alpha > 0:

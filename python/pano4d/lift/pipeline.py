@@ -56,6 +56,7 @@ from pano4d.lift.optimize import (
     TrainViews,
 )
 from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.windows import StaticRender, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
@@ -439,6 +440,11 @@ class DynamicSets:
     logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
 
 
+def static_render(inputs: LiftInputs, static: Gaussians, camera: Camera) -> StaticRender:
+    out = inputs.render(static, camera)
+    return StaticRender(out.rgb, out.alpha, out.depth)
+
+
 def dynamic_iterations(full: int, t: int) -> int:
     """At most this many steps for timestamp t: the full count first, half for the
     warm-started later ones; the stop rule (``convergence``) may end either sooner."""
@@ -480,20 +486,32 @@ def fit_dynamic(
         }  # fmt: skip
 
     h, w = cameras[0].height, cameras[0].width
+    # A step renders only the window of each view that the dynamic set can reach, against
+    # the static Gaussians that can draw into it (lift.windows; not with L_sem, whose
+    # features are the whole view's): the static set's render of the views, once.
+    windows = inputs.knobs.dynamic_windows and features is None
+    with torch.no_grad():
+        static_renders = [static_render(inputs, static, c) for c in cams] if windows else []
     for t in range(len(done), total):
+        dynamic = initial if t == 0 else done[-1]
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
         if t > 0:
             with torch.no_grad():
                 scene = Gaussians.cat([static, done[-1]])
                 views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
+        context = static
+        if windows:
+            reach = [reach_window(c, inputs.moving_in_view(c), dynamic) for c in cams]
+            views = windowed(views, reach, static_renders)
+            context = static[touching(static, views.cameras)]
         iterations = dynamic_iterations(full, t)
         trainer = make_trainer(
             inputs.trainer,
-            initial if t == 0 else done[-1],
+            dynamic,
             views,
             trainer_knobs(inputs.knobs, iterations, budget, median_depth),
             inputs.render,
-            context=static,
+            context=context,
             features=features,
             seed=inputs.cfg.seed + 1 + t,
         )
@@ -501,8 +519,10 @@ def fit_dynamic(
             resume(trainer, state, inputs.trainer, checkpoints.path("dynamic"))
             checkpoints.resumed("dynamic", t=t, step=trainer.step)
         else:
-            logs.append(TrainLog(f"dynamic t={t}", len(initial if t == 0 else done[-1])))
+            logs.append(TrainLog(f"dynamic t={t}", len(dynamic)))
         log = logs[t]
+        log.context = len(context)
+        log.window_share = sum(c.width * c.height for c in views.cameras) / (len(cams) * h * w)
         rule = (
             StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])
             if inputs.knobs.stop_when_converged

@@ -126,7 +126,8 @@ class ResidentTrainer(Trainer):
                     flat(weight),
                     flat(v.depth[i]) if k.lambda_geo > 0 else None,
                     flat(v.previous[i]) if temporal and v.previous is not None else None,
-                    float(weight.sum().clamp(min=1e-6)),
+                    float(v.weight_sum(i)),
+                    [float(x) for x in v.outside_sums(i)],
                 )
             )
         return out
@@ -184,7 +185,7 @@ class ResidentTrainer(Trainer):
         centre = torch.from_numpy(s.read_render()).reshape(h, w, 5)[..., :3].to(self.device)
         delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
         moved = moved_camera(camera, delta * alpha * k.sem_scale)
-        pixels = torch.from_numpy(s.render_at(*camera_arrays(moved))).reshape(h, w, 5)
+        pixels = torch.from_numpy(s.render_at(*camera_arrays(moved), w, h)).reshape(h, w, 5)
         moved_rgb = pixels[..., :3].to(self.device).requires_grad_(True)
         loss = k.lambda_sem * (
             1 - F.cosine_similarity(self.features.cls(centre), self.features.cls(moved_rgb), dim=0)

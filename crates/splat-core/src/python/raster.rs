@@ -40,6 +40,7 @@ pub(super) fn with_renderer<T>(
 pub(super) fn camera_from(
     k: &PyReadonlyArray2<'_, f64>,
     w2c: &PyReadonlyArray2<'_, f64>,
+    half_fov_tan: [f64; 2],
     width: u32,
     height: u32,
 ) -> PyResult<Camera> {
@@ -52,7 +53,10 @@ pub(super) fn camera_from(
     }
     let kk = std::array::from_fn(|r| std::array::from_fn(|c| k[[r, c]]));
     let ww = std::array::from_fn(|r| std::array::from_fn(|c| w2c[[r, c]]));
-    Ok(Camera::from_matrices(kk, ww, width, height))
+    Ok(Camera {
+        half_fov_tan: half_fov_tan.into(),
+        ..Camera::from_matrices(kk, ww, width, height)
+    })
 }
 
 pub(super) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResult<&'a [f32]> {
@@ -79,7 +83,7 @@ fn scene<'a>(
 
 /// Renders; returns (H*W*5 float32: r, g, b, alpha, sum z*alpha*T; intersection count).
 #[pyfunction]
-#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, width, height, background, antialiased))]
+#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, half_fov_tan, width, height, background, antialiased))]
 #[allow(clippy::too_many_arguments)]
 fn render_forward<'py>(
     py: Python<'py>,
@@ -90,12 +94,13 @@ fn render_forward<'py>(
     sh: PyReadonlyArray1<'py, f32>,
     k: PyReadonlyArray2<'py, f64>,
     world_to_cam: PyReadonlyArray2<'py, f64>,
+    half_fov_tan: [f64; 2],
     width: u32,
     height: u32,
     background: [f32; 3],
     antialiased: bool,
 ) -> PyResult<(Bound<'py, PyArray1<f32>>, u32)> {
-    let camera = camera_from(&k, &world_to_cam, width, height)?;
+    let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
     let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
     let settings = RenderSettings {
         background,
@@ -111,7 +116,7 @@ fn render_forward<'py>(
 /// Gradients w.r.t. (means, log_scales, quats, opacity_logits, sh), flat float32, given
 /// the gradient of the loss w.r.t. render_forward's output (same layout).
 #[pyfunction]
-#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, width, height, background, antialiased, v_pixels))]
+#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, half_fov_tan, width, height, background, antialiased, v_pixels))]
 #[allow(clippy::too_many_arguments)]
 fn render_backward<'py>(
     py: Python<'py>,
@@ -122,13 +127,14 @@ fn render_backward<'py>(
     sh: PyReadonlyArray1<'py, f32>,
     k: PyReadonlyArray2<'py, f64>,
     world_to_cam: PyReadonlyArray2<'py, f64>,
+    half_fov_tan: [f64; 2],
     width: u32,
     height: u32,
     background: [f32; 3],
     antialiased: bool,
     v_pixels: PyReadonlyArray1<'py, f32>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let camera = camera_from(&k, &world_to_cam, width, height)?;
+    let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
     let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
     let v = slice("v_pixels", &v_pixels)?;
     let settings = RenderSettings {

@@ -19,6 +19,7 @@ use crate::gaussians::{SceneInput, BASE_FLOATS};
 use crate::raster::RenderSettings;
 use crate::train::{
     AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput, ViewTargets, GROUPS,
+    OUTSIDE_SUMS,
 };
 
 /// The learning-rate groups by name, in [`crate::train::AdamConfig::learning_rates`]' order
@@ -205,10 +206,12 @@ fn optional<'a>(
     array.as_ref().map(|a| slice(name, a)).transpose()
 }
 
-/// (K, world_to_cam, width, height, rgb, weight, depth, previous, weight_sum) of one view.
+/// (K, world_to_cam, half_fov_tan, width, height, rgb, weight, depth, previous, weight_sum,
+/// outside) of one view.
 type PyView<'py> = (
     PyReadonlyArray2<'py, f64>,
     PyReadonlyArray2<'py, f64>,
+    [f64; 2],
     u32,
     u32,
     PyReadonlyArray1<'py, f32>,
@@ -216,6 +219,7 @@ type PyView<'py> = (
     Option<PyReadonlyArray1<'py, f32>>,
     Option<PyReadonlyArray1<'py, f32>>,
     f32,
+    [f32; OUTSIDE_SUMS],
 );
 
 /// The trained Gaussians, their Adam moments and the stage's targets on the GPU.
@@ -227,8 +231,9 @@ pub struct PyTrainSession {
 #[pymethods]
 impl PyTrainSession {
     /// `context`/`trained`: packed Gaussians (see the module docs); `unit`: each trained
-    /// Gaussian's offset unit; `views`: (K, world_to_cam, width, height, rgb, weight,
-    /// depth or None, previous or None, weight_sum) tuples; `settings`: a TrainSettings.
+    /// Gaussian's offset unit; `views`: (K, world_to_cam, half_fov_tan, width, height, rgb,
+    /// weight, depth or None, previous or None, weight_sum, outside sums) tuples (a view may
+    /// be a window of a larger one: train::ViewTargets); `settings`: a TrainSettings.
     #[new]
     fn new(
         py: Python<'_>,
@@ -243,14 +248,17 @@ impl PyTrainSession {
         let context = unpack("context", slice("context", &context)?, context_len)?;
         let gaussians = unpack("trained", slice("trained", &trained)?, unit.len())?;
         let mut targets = Vec::with_capacity(views.len());
-        for (k, w2c, width, height, rgb, weight, depth, previous, weight_sum) in &views {
+        for (k, w2c, tan, width, height, rgb, weight, depth, previous, weight_sum, outside) in
+            &views
+        {
             targets.push(ViewTargets {
-                camera: camera_from(k, w2c, *width, *height)?,
+                camera: camera_from(k, w2c, *tan, *width, *height)?,
                 rgb: slice("rgb", rgb)?,
                 weight: slice("weight", weight)?,
                 depth: optional("depth", depth)?,
                 previous: optional("previous", previous)?,
                 weight_sum: *weight_sum,
+                outside: *outside,
             });
         }
         let config = settings.config;
@@ -300,16 +308,19 @@ impl PyTrainSession {
         Ok(PyArray1::from_vec(py, pixels))
     }
 
-    /// Renders at another camera of the views' size; returns its pixels (H·W·5).
+    /// Renders at another camera (of at most the largest view's pixels); returns its
+    /// pixels (H·W·5).
     fn render_at<'py>(
         &mut self,
         py: Python<'py>,
         k: PyReadonlyArray2<'py, f64>,
         world_to_cam: PyReadonlyArray2<'py, f64>,
+        half_fov_tan: [f64; 2],
+        width: u32,
+        height: u32,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let s = &mut self.inner;
-        let (width, height) = s.size();
-        let camera = camera_from(&k, &world_to_cam, width, height)?;
+        let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
         let pixels = py
             .detach(|| with_renderer(|r| s.render_at(r, &camera)))
             .map_err(to_py)?;

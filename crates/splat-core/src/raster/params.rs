@@ -78,8 +78,7 @@ impl RenderParams {
             [v.x as f32, v.y as f32, v.z as f32, t[i] as f32]
         };
         let p = camera.position();
-        let tan_x = 0.5 * camera.width as f64 / camera.fx;
-        let tan_y = 0.5 * camera.height as f64 / camera.fy;
+        let tan = camera.half_fov_tan;
         let bg = settings.background;
         Self {
             rot_row0: row(0),
@@ -93,8 +92,8 @@ impl RenderParams {
                 camera.cy as f32,
             ],
             jacobian_limits: [
-                (JACOBIAN_CLAMP * tan_x) as f32,
-                (JACOBIAN_CLAMP * tan_y) as f32,
+                (JACOBIAN_CLAMP * tan.x) as f32,
+                (JACOBIAN_CLAMP * tan.y) as f32,
                 0.0,
                 0.0,
             ],
@@ -140,10 +139,13 @@ pub(crate) fn validate_camera(camera: &Camera) -> Result<(), RasterError> {
         .iter()
         .all(|v| v.is_finite())
         && camera.rotation.is_finite()
-        && camera.translation.is_finite();
-    if !finite || camera.fx <= 0.0 || camera.fy <= 0.0 {
+        && camera.translation.is_finite()
+        && camera.half_fov_tan.is_finite();
+    if !finite || camera.fx <= 0.0 || camera.fy <= 0.0 || camera.half_fov_tan.min_element() <= 0.0 {
         return Err(RasterError::InvalidInput(
-            "camera intrinsics and pose must be finite with fx, fy > 0".into(),
+            "camera intrinsics, field of view and pose must be finite with fx, fy and the \
+             half field of view's tangents > 0"
+                .into(),
         ));
     }
     if camera.width == 0 || camera.height == 0 || camera.width > 16384 || camera.height > 16384 {

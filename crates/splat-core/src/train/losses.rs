@@ -77,9 +77,17 @@ gpu_struct! {
         lambda_ssim: f32,
         lambda_temporal: f32,
         lambda_geo: f32,
+        outside_l1: f32,
+        outside_ssim: f32,
+        outside_temporal: f32,
+        outside_covered: f32,
+        outside_mean_a: f32,
+        outside_mean_b: f32,
+        outside_var_a: f32,
+        outside_var_b: f32,
+        outside_cov: f32,
         pad0: u32,
         pad1: u32,
-        pad2: u32,
         /// The window's taps, four to a vector.
         taps: [[f32; 4]; 3],
     }
@@ -96,6 +104,7 @@ impl LossParams {
         weights: LossWeights,
         has_previous: bool,
         has_depth: bool,
+        outside: [f32; OUTSIDE_SUMS],
     ) -> Self {
         let window = ssim_window(width, height);
         let mut taps = [[0.0; 4]; 3];
@@ -110,13 +119,29 @@ impl LossParams {
             lambda_ssim: weights.ssim,
             lambda_temporal: weights.temporal,
             lambda_geo: if has_depth { weights.geo } else { 0.0 },
+            outside_l1: outside[0],
+            outside_ssim: outside[1],
+            outside_temporal: outside[2],
+            outside_covered: outside[3],
+            outside_mean_a: outside[4],
+            outside_mean_b: outside[5],
+            outside_var_a: outside[6],
+            outside_var_b: outside[7],
+            outside_cov: outside[8],
             pad0: 0,
             pad1: 0,
-            pad2: 0,
             taps,
         }
     }
 }
+
+/// The loss sums over the pixels of a view outside the window its steps render (all zero
+/// when they render the whole view), in losses.wgsl's `outside_*` order: Σ w·mean|x − t|,
+/// Σ w·mean SSIM, Σ w·mean|x − prev|, L_geo's covered weight Σ c, the means of the
+/// rendered and of Θ's depth over it, and Σ c·da², Σ c·db², Σ c·da·db about those means.
+/// The static render outside a dynamic step's window cannot change during the stage, so
+/// the host computes them once (python/pano4d/lift/windows.py).
+pub const OUTSIDE_SUMS: usize = 9;
 
 /// A view's targets on the device (`depth` and `previous` are a placeholder when absent).
 pub(super) struct ViewBuffers<'a> {

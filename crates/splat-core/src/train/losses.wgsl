@@ -6,7 +6,10 @@
 //
 // (λ_l1 = 0.8 λ_rgb and λ_ssim = 0.2 λ_rgb in the lifting phase), every term weighted per
 // pixel by the view's weight w and normalised by ws = max(Σ w, 1e-6) (computed by the host,
-// as torch does). SSIM is kornia's `metrics.ssim`: a separable Gaussian window (σ = 1.5,
+// as torch does). The pixels may be a window of the view (a dynamic step renders only what
+// the moving region reaches): ws is then the whole view's, and the sums over the rest of the
+// view come in LossParams (`outside_*`), so the loss, L_geo's statistics and the gradient
+// are the whole view's. SSIM is kornia's `metrics.ssim`: a separable Gaussian window (σ = 1.5,
 // 2r + 1 taps), rows first, then columns, each padded by reflection; C1 = 0.01²,
 // C2 = 0.03², eps = 1e-12 in the denominator; pixels of weight 0 take no part (their
 // target is the rendered value and they get no SSIM gradient, as `ssim_loss` detaches
@@ -34,9 +37,22 @@ struct LossParams {
     lambda_ssim: f32,
     lambda_temporal: f32,
     lambda_geo: f32,
+    // The sums over the pixels of the view outside the rendered window (all 0 when the
+    // window is the whole view): Σ w·mean|x − t|, Σ w·mean SSIM, Σ w·mean|x − prev| (SSIM's
+    // as the window's own computation misses them), then L_geo's covered weight, the means
+    // of the rendered and of Θ's depth over it and the centred sums Σ c·da², Σ c·db²,
+    // Σ c·da·db about those means (lift/windows.py computes them; train/losses.rs).
+    outside_l1: f32,
+    outside_ssim: f32,
+    outside_temporal: f32,
+    outside_covered: f32,
+    outside_mean_a: f32,
+    outside_mean_b: f32,
+    outside_var_a: f32,
+    outside_var_b: f32,
+    outside_cov: f32,
     pad0: u32,
     pad1: u32,
-    pad2: u32,
     // The window's taps (at most 11), four to a vector.
     taps: array<vec4<f32>, 3>,
 }
@@ -299,6 +315,14 @@ fn ssim_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
 @compute @workgroup_size(256)
 fn totals_a(@builtin(local_invocation_index) lid: u32) {
     total_partials(0u, lid);
+    if lid == 0u {
+        totals[SUM_L1] += lp.outside_l1;
+        totals[SUM_SSIM] += lp.outside_ssim;
+        totals[SUM_TEMPORAL] += lp.outside_temporal;
+        totals[SUM_COVERED] += lp.outside_covered;
+        totals[SUM_COVERED_A] += lp.outside_covered * lp.outside_mean_a;
+        totals[SUM_COVERED_B] += lp.outside_covered * lp.outside_mean_b;
+    }
 }
 
 // The weighted moments of the centred depths (sums B) per workgroup.
@@ -327,6 +351,18 @@ fn pearson_terms(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups)
 @compute @workgroup_size(256)
 fn totals_b(@builtin(local_invocation_index) lid: u32) {
     total_partials(SUM_COV, lid);
+    if lid == 0u {
+        // The outside pixels' share, from their centred sums moved to the view's means.
+        let covered = max(totals[SUM_COVERED], MIN_WEIGHT_SUM);
+        let ea = lp.outside_mean_a - totals[SUM_COVERED_A] / covered;
+        let eb = lp.outside_mean_b - totals[SUM_COVERED_B] / covered;
+        let c = lp.outside_covered;
+        totals[SUM_COV] += (lp.outside_cov + c * ea * eb) / covered;
+        totals[SUM_VAR_A] += (lp.outside_var_a + c * ea * ea) / covered;
+        totals[SUM_VAR_B] += (lp.outside_var_b + c * eb * eb) / covered;
+        totals[SUM_DA] += c * ea / covered;
+        totals[SUM_DB] += c * eb / covered;
+    }
 }
 
 // The three coefficient vectors, summed with the window's taps.

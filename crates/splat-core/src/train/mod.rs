@@ -19,7 +19,7 @@ pub mod session;
 mod tests;
 
 pub use adam::{AdamConfig, GROUPS};
-pub use losses::{ssim_taps, ssim_window, LossWeights, LOSS_PARTS};
+pub use losses::{ssim_taps, ssim_window, LossWeights, LOSS_PARTS, OUTSIDE_SUMS};
 pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, ViewTargets};
 
 /// The training loop's kernel modules (for the checks of the WGSL against the Rust

@@ -9,7 +9,9 @@
 //! counts every byte the session moves between host and device.
 
 use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
-use super::losses::{LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS};
+use super::losses::{
+    LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS, OUTSIDE_SUMS,
+};
 use crate::camera::Camera;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
 use crate::raster::gpu::{pop_error, read_mapped, submit_checked};
@@ -19,7 +21,10 @@ use crate::raster::{
 };
 
 /// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
-/// L_geo) and the previous timestamp's render (h·w·3, for L_temporal).
+/// L_geo) and the previous timestamp's render (h·w·3, for L_temporal). The camera may be a
+/// window of a larger view ([`Camera::window`]): `weight_sum` is then the whole view's and
+/// `outside` the loss sums over the rest of it (losses.rs, [`OUTSIDE_SUMS`]). Views may
+/// differ in size.
 pub struct ViewTargets<'a> {
     pub camera: Camera,
     pub rgb: &'a [f32],
@@ -28,6 +33,7 @@ pub struct ViewTargets<'a> {
     pub previous: Option<&'a [f32]>,
     /// max(Σ weight, 1e-6), as the torch trainer computes it (the caller's float sum).
     pub weight_sum: f32,
+    pub outside: [f32; OUTSIDE_SUMS],
 }
 
 /// Everything fixed for a session.
@@ -101,8 +107,10 @@ pub struct TrainSession {
     adam: AdamKernel,
     loss_buffers: LossBuffers,
     views: Vec<View>,
-    width: u32,
-    height: u32,
+    /// The largest view's pixel count: the loss buffers' size.
+    max_pixels: u32,
+    /// Pixels of the last frame rendered (what [`Self::read_render`] reads).
+    frame_pixels: u32,
     /// Bound where a view has no depth or previous render.
     placeholder: wgpu::Buffer,
     sh_coeffs: u32,
@@ -163,15 +171,14 @@ impl TrainSession {
         let ctx = renderer.context();
         let device = ctx.device.clone();
         let queue = ctx.queue.clone();
-        let first = views
-            .first()
-            .ok_or_else(|| invalid("no views to train on".into()))?;
-        let (width, height) = (first.camera.width, first.camera.height);
-        if width.min(height) < 4 {
-            return Err(invalid(format!(
-                "views must be at least 4 pixels a side for SSIM, got {width}x{height}"
-            )));
+        if views.is_empty() {
+            return Err(invalid("no views to train on".into()));
         }
+        let max_pixels = views
+            .iter()
+            .map(|v| v.camera.width * v.camera.height)
+            .max()
+            .unwrap_or(0);
         let (n_context, k_context) = context.validate().map_err(invalid)?;
         let (n_train, k_train) = trained.gaussians.validate().map_err(invalid)?;
         let sh_coeffs = if n_train > 0 { k_train } else { k_context };
@@ -182,7 +189,7 @@ impl TrainSession {
             )));
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let loss_buffers = LossBuffers::new(&device, width * height);
+        let loss_buffers = LossBuffers::new(&device, max_pixels);
         let adam_params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("adam params"),
             size: std::mem::size_of::<AdamParams>() as u64,
@@ -194,8 +201,8 @@ impl TrainSession {
             adam: AdamKernel::new(&device),
             loss_buffers,
             views: Vec::with_capacity(views.len()),
-            width,
-            height,
+            max_pixels,
+            frame_pixels: 0,
             placeholder: storage(&device, "placeholder", 1),
             sh_coeffs,
             n_context,
@@ -226,7 +233,7 @@ impl TrainSession {
         session.v_extra = storage(
             &session.device,
             "extra pixel gradients",
-            PIXEL_CHANNELS as u64 * (width * height) as u64,
+            PIXEL_CHANNELS as u64 * max_pixels as u64,
         );
         session.allocate_scene(n_context + n_train)?;
         session.write_scene(0, &context);
@@ -237,10 +244,15 @@ impl TrainSession {
 
     fn add_view(&mut self, view: &ViewTargets<'_>) -> Result<(), RasterError> {
         let (w, h) = (view.camera.width, view.camera.height);
-        if (w, h) != (self.width, self.height) {
+        if w.min(h) < 4 {
             return Err(invalid(format!(
-                "all views must have one size: {w}x{h} after {}x{}",
-                self.width, self.height
+                "views must be at least 4 pixels a side for SSIM, got {w}x{h}"
+            )));
+        }
+        if !view.outside.iter().all(|v| v.is_finite()) {
+            return Err(invalid(format!(
+                "a view's outside sums must be finite, got {:?}",
+                view.outside
             )));
         }
         let pixels = (w * h) as usize;
@@ -265,6 +277,7 @@ impl TrainSession {
             self.config.losses,
             view.previous.is_some(),
             view.depth.is_some(),
+            view.outside,
         );
         let uniform = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("loss params"),
@@ -316,11 +329,6 @@ impl TrainSession {
 
     pub fn views(&self) -> usize {
         self.views.len()
-    }
-
-    /// The views' (width, height).
-    pub fn size(&self) -> (u32, u32) {
-        (self.width, self.height)
     }
 
     /// Adam steps taken so far.
@@ -563,6 +571,7 @@ impl TrainSession {
     ) -> Result<(), RasterError> {
         let camera = self.view(view)?.camera;
         let frame = renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        self.frame_pixels = camera.width * camera.height;
         self.encode_losses(view, renderer.frame_pixels())?;
         renderer.encode_backward(&frame, &self.loss_buffers.v_pixels, &self.grads)?;
         self.extra_frame = None;
@@ -578,9 +587,9 @@ impl TrainSession {
         view: usize,
         pixels: &[f32],
     ) -> Result<(Vec<f32>, [f32; LOSS_PARTS]), RasterError> {
-        let len = PIXEL_CHANNELS * (self.width * self.height) as usize;
+        let camera = self.view(view)?.camera;
+        let len = PIXEL_CHANNELS * (camera.width * camera.height) as usize;
         check_len("pixels", pixels.len(), len)?;
-        self.view(view)?;
         let input = storage(&self.device, "given pixels", len as u64);
         self.upload(&input, 0, bytemuck::cast_slice(pixels));
         self.encode_losses(view, &input)?;
@@ -591,24 +600,25 @@ impl TrainSession {
 
     /// The pixels (H·W·5) of the last forward.
     pub fn read_render(&mut self, renderer: &Renderer) -> Result<Vec<f32>, RasterError> {
-        let bytes = 4 * PIXEL_CHANNELS as u64 * (self.width * self.height) as u64;
+        let bytes = 4 * PIXEL_CHANNELS as u64 * self.frame_pixels as u64;
         self.read(&[(renderer.frame_pixels(), 0, bytes)])
     }
 
-    /// Renders the current scene at `camera` (of the views' size) and reads the pixels
+    /// Renders the current scene at `camera` (at most the largest view's pixels) and reads the pixels
     /// back; [`Self::backward_at`] then adds the gradient of a loss on them.
     pub fn render_at(
         &mut self,
         renderer: &mut Renderer,
         camera: &Camera,
     ) -> Result<Vec<f32>, RasterError> {
-        if (camera.width, camera.height) != (self.width, self.height) {
+        if camera.width * camera.height > self.max_pixels {
             return Err(invalid(format!(
-                "the camera must have the views' size {}x{}, got {}x{}",
-                self.width, self.height, camera.width, camera.height
+                "the camera may have at most the largest view's {} pixels, got {}x{}",
+                self.max_pixels, camera.width, camera.height
             )));
         }
         let frame = renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings)?;
+        self.frame_pixels = camera.width * camera.height;
         self.extra_frame = Some(frame);
         self.read_render(renderer)
     }
@@ -620,15 +630,16 @@ impl TrainSession {
         renderer: &mut Renderer,
         v_pixels: &[f32],
     ) -> Result<(), RasterError> {
-        check_len(
-            "v_pixels",
-            v_pixels.len(),
-            PIXEL_CHANNELS * (self.width * self.height) as usize,
-        )?;
         let frame = self
             .extra_frame
             .take()
             .ok_or_else(|| invalid("backward_at needs a render_at first".into()))?;
+        let (width, height) = frame.size();
+        check_len(
+            "v_pixels",
+            v_pixels.len(),
+            PIXEL_CHANNELS * (width * height) as usize,
+        )?;
         let v_extra = self.v_extra.clone();
         self.upload(&v_extra, 0, bytemuck::cast_slice(v_pixels));
         renderer.encode_backward(&frame, &v_extra, &self.grads_extra)?;

@@ -5,7 +5,7 @@
 
 use super::{
     ssim_taps, ssim_window, AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput,
-    ViewTargets,
+    ViewTargets, OUTSIDE_SUMS,
 };
 use crate::camera::Camera;
 use crate::gaussians::{GaussianSet, SceneInput};
@@ -114,6 +114,7 @@ fn session(
         depth: Some(&t.depth),
         previous: None,
         weight_sum: (side * side) as f32,
+        outside: [0.0; OUTSIDE_SUMS],
     };
     TrainSession::new(
         renderer,
@@ -320,6 +321,7 @@ fn bad_inputs_are_refused_with_what_is_wrong() {
         depth: None,
         previous: None,
         weight_sum: 1.0,
+        outside: [0.0; OUTSIDE_SUMS],
     };
     let message = |r: Result<TrainSession, RasterError>| match r {
         Err(RasterError::InvalidInput(m)) => m,
@@ -342,13 +344,21 @@ fn bad_inputs_are_refused_with_what_is_wrong() {
     };
     let short = message(new(&context, &[view(16, &[0.0; 5])]));
     assert!(short.contains("rgb has 5 values, expected 768"), "{short}");
+    // Views may differ in size (a dynamic step's windows), not have non-finite outside sums.
     let small = ViewTargets {
         weight: &t.weight[..64],
         rgb: &t.rgb[..192],
         ..view(8, &[])
     };
-    let mixed = message(new(&context, &[good, small]));
-    assert!(mixed.contains("one size"), "{mixed}");
+    let outside = ViewTargets {
+        outside: [f32::NAN; OUTSIDE_SUMS],
+        ..view(8, &[])
+    };
+    let bad_outside = message(new(&context, &[good, small, outside]));
+    assert!(
+        bad_outside.contains("outside sums must be finite"),
+        "{bad_outside}"
+    );
     let degree0 = GaussianSet {
         sh_degree: 0,
         sh: vec![0.0; 9],
@@ -406,6 +416,7 @@ fn reserved_frames_do_not_overflow_and_checks_count_overflows() {
             depth: None,
             previous: None,
             weight_sum: (side * side) as f32,
+            outside: [0.0; OUTSIDE_SUMS],
         })
         .collect();
     let empty = GaussianSet::with_capacity(1, 0);

@@ -1,0 +1,236 @@
+"""What a dynamic step redoes: per view, the window of pixels the dynamic set can reach.
+
+While a timestamp's dynamic set trains, the static set is frozen, so outside the pixels the
+dynamic Gaussians reach every step's render is the static set's, the same at every step. A
+dynamic step therefore renders only a window of each view (``Camera.window``: the same
+pixels), with only the static Gaussians that can touch some window (``touching``), and the
+loss keeps the whole view's meaning (``TrainViews.weight_sums`` and ``outside``): the L1,
+SSIM and L_temporal sums over the rest of the view and L_geo's statistics there are
+computed once from the static set's render (``outside_sums``) and added on the device, and
+every term is normalised by the whole view's weight.
+
+Why that is exact (tests/test_windows.py checks one step against the whole view):
+- the reach is the moving region seen by the view and the dynamic set's 3σ footprints,
+  grown by ``REACH_SLACK`` of the view's side (what the set may move or grow during a
+  stage); pixels outside it are the static render at every step;
+- an SSIM value at pixel c reads the pixels within r = 5 of c (11 taps), so it can change
+  only for c within r of the reach, and its taps lie within 2r of the reach: with the
+  window ``SSIM_MARGIN`` ≥ 2r + 1 beyond the reach, those values are computed on the
+  view's own pixels, and the values near the window's edge (whose taps reflect at the edge,
+  not at the view's) read only pixels that cannot change, so they are constants that
+  ``outside_sums`` takes back out (it computes the window's own sums on the static render
+  the same way and subtracts them from the whole view's);
+- the static Gaussians dropped from a step cannot draw into any window (a conservative
+  footprint, the rasteriser's own), so the window's pixels are the whole render's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians
+from pano4d.lift.optimize import OUTSIDE_SUMS, SSIM_WINDOW, TrainViews, ssim_map
+from pano4d.raster_torch import (
+    JACOBIAN_CLAMP,
+    LOW_PASS,
+    MAX_LOG_SCALE,
+    MIN_LOG_SCALE,
+    NEAR_PLANE,
+    quat_to_rotation,
+)
+
+SSIM_MARGIN = SSIM_WINDOW  # 2r + 1 pixels between the reach and the window's edge (above)
+# What the dynamic set may move or grow beyond its footprints during a stage, as a share of
+# the view's side (4 pixels at draft's 128, 16 at balanced's 512).
+REACH_SLACK = 1 / 32
+SIGMAS = 3.0  # the rasteriser's footprint: 3σ of the projected Gaussian
+# Pixels added to the footprint for float rounding (float64 here, float32 on the device):
+# dropping a Gaussian that draws into a window would change the render.
+PIXEL_SAFETY = 1.0
+
+
+@dataclass(frozen=True)
+class ViewWindow:
+    """Pixels [x0, x0 + width) × [y0, y0 + height) of a view."""
+
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+    def camera(self, view: Camera) -> Camera:
+        return view.window(self.x0, self.y0, self.width, self.height)
+
+    def crop(self, image: torch.Tensor) -> torch.Tensor:
+        """The window of an (H, W, …) image."""
+        return image[self.y0 : self.y0 + self.height, self.x0 : self.x0 + self.width]
+
+    def outside(self, height: int, width: int) -> torch.Tensor:
+        """(H, W) bool: the view's pixels outside the window."""
+        mask = torch.ones(height, width, dtype=torch.bool)
+        mask[self.y0 : self.y0 + self.height, self.x0 : self.x0 + self.width] = False
+        return mask
+
+    def share(self, view: Camera) -> float:
+        """The window's fraction of the view's pixels."""
+        return self.width * self.height / (view.width * view.height)
+
+
+def footprints(g: Gaussians, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel centre (N, 2) and footprint radius (N,) of each Gaussian in ``camera``, as the
+    rasteriser computes them (3·sqrt(λmax(Σ2D + 0.3 I)), rounded up; a Gaussian changes no
+    pixel beyond it) plus PIXEL_SAFETY for float rounding, in float64; radius −1 where the
+    rasteriser culls it (behind the near plane, or not finite)."""
+    means = g.means.detach().to("cpu", torch.float64)
+    pc = camera.world_to_camera(means)
+    z = pc[:, 2]
+    visible = z >= NEAR_PLANE
+    rz = 1.0 / torch.where(visible, z, torch.ones_like(z))
+    tan_x, tan_y = camera.half_fov_tan
+    u = torch.clamp(pc[:, 0] * rz, -JACOBIAN_CLAMP * tan_x, JACOBIAN_CLAMP * tan_x)
+    v = torch.clamp(pc[:, 1] * rz, -JACOBIAN_CLAMP * tan_y, JACOBIAN_CLAMP * tan_y)
+    zero = torch.zeros_like(rz)
+    J = torch.stack([
+        camera.fx * rz, zero, -camera.fx * u * rz,
+        zero, camera.fy * rz, -camera.fy * v * rz,
+    ], dim=-1).reshape(-1, 2, 3)  # fmt: skip
+    log_scales = g.log_scales.detach().to("cpu", torch.float64)
+    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
+    M = quat_to_rotation(g.quats.detach().to("cpu", torch.float64)) * scales[:, None, :]
+    T = J @ camera.R @ M
+    cov = T @ T.transpose(1, 2)
+    a, b, c = cov[:, 0, 0] + LOW_PASS, cov[:, 0, 1], cov[:, 1, 1] + LOW_PASS
+    mid = 0.5 * (a + c)
+    lam = mid + torch.sqrt(torch.clamp(mid * mid - (a * c - b * b), min=0.1))
+    radius = torch.ceil(SIGMAS * torch.sqrt(lam)) + PIXEL_SAFETY
+    centre = torch.stack([camera.fx * pc[:, 0] * rz + camera.cx,
+                          camera.fy * pc[:, 1] * rz + camera.cy], dim=-1)  # fmt: skip
+    finite = torch.isfinite(centre).all(-1) & torch.isfinite(radius)
+    return centre, torch.where(visible & finite, radius, torch.full_like(radius, -1.0))
+
+
+def touching(g: Gaussians, cameras: list[Camera]) -> torch.Tensor:
+    """(N,) bool: the Gaussians that can draw into some camera's image."""
+    keep = torch.zeros(len(g), dtype=torch.bool)
+    for camera in cameras:
+        centre, radius = footprints(g, camera)
+        x, y = centre[:, 0], centre[:, 1]
+        keep |= (
+            (radius >= 0)
+            & (x + radius >= 0)
+            & (x - radius <= camera.width)
+            & (y + radius >= 0)
+            & (y - radius <= camera.height)
+        )
+    return keep.to(g.means.device)
+
+
+def reach_window(camera: Camera, moving: torch.Tensor, dynamic: Gaussians) -> ViewWindow:
+    """The window of ``camera``'s view that a step must render: the bounding box of the
+    pixels the moving region (``moving``: (h, w), > 0 where the view sees it) or the dynamic
+    set can reach, grown by REACH_SLACK and SSIM_MARGIN, within the view."""
+    ys, xs = torch.nonzero(moving > 0, as_tuple=True)
+    lo = [float(xs.min()), float(ys.min())] if len(xs) else [math.inf, math.inf]
+    hi = [float(xs.max()) + 1, float(ys.max()) + 1] if len(xs) else [-math.inf, -math.inf]
+    if len(dynamic):
+        centre, radius = footprints(dynamic, camera)
+        drawn = (
+            (radius >= 0)
+            & (centre[:, 0] + radius >= 0) & (centre[:, 0] - radius <= camera.width)
+            & (centre[:, 1] + radius >= 0) & (centre[:, 1] - radius <= camera.height)
+        )  # fmt: skip
+        if bool(drawn.any()):
+            c, r = centre[drawn], radius[drawn]
+            lo = [min(lo[i], float((c[:, i] - r).min())) for i in (0, 1)]
+            hi = [max(hi[i], float((c[:, i] + r).max())) for i in (0, 1)]
+    size = (camera.width, camera.height)
+    if not lo[0] <= hi[0]:  # nothing reaches the view: the smallest window SSIM allows
+        side = 2 * SSIM_MARGIN
+        return ViewWindow(0, 0, min(size[0], side), min(size[1], side))
+    grow = math.ceil(REACH_SLACK * max(size)) + SSIM_MARGIN
+    start = [max(0, math.floor(lo[i]) - grow) for i in (0, 1)]
+    end = [min(size[i], math.ceil(hi[i]) + grow) for i in (0, 1)]
+    return ViewWindow(start[0], start[1], end[0] - start[0], end[1] - start[1])
+
+
+@dataclass(frozen=True)
+class StaticRender:
+    """The static set's render of a whole view: what a dynamic step leaves outside its
+    window."""
+
+    rgb: torch.Tensor  # (H, W, 3)
+    alpha: torch.Tensor  # (H, W)
+    depth: torch.Tensor  # (H, W) expected z-depth
+
+
+def outside_sums(
+    window: ViewWindow,
+    static: StaticRender,
+    target: torch.Tensor,
+    weight: torch.Tensor,
+    depth: torch.Tensor,
+    previous: torch.Tensor | None,
+) -> torch.Tensor:
+    """OUTSIDE_SUMS of a view outside ``window`` (float32), from the static render: the whole
+    view's L1, SSIM and L_temporal sums less the window's own (computed as a step computes
+    them, so that the window's constant edge values cancel), and L_geo's covered weight,
+    means and centred sums over the pixels outside the window."""
+    x, t, w = static.rgb.double(), target.double(), weight.double()
+    p = None if previous is None else previous.double()
+
+    def photometric(
+        x: torch.Tensor, t: torch.Tensor, w: torch.Tensor, p: torch.Tensor | None
+    ) -> list[torch.Tensor]:
+        l1 = ((x - t).abs().mean(-1) * w).sum()
+        temporal = torch.zeros_like(l1) if p is None else ((x - p).abs().mean(-1) * w).sum()
+        return [l1, (ssim_map(x, t, w) * w).sum(), temporal]
+
+    whole = photometric(x, t, w, p)
+    crop = window.crop
+    own = photometric(crop(x), crop(t), crop(w), None if p is None else crop(p))
+    rest = window.outside(*weight.shape).to(w.device)
+    covered = w * (static.alpha.double() > 0.5) * rest
+    c = covered.sum()
+    a, b = static.depth.double(), depth.double()
+    mean_a = (covered * a).sum() / c if c > 0 else torch.zeros((), dtype=torch.float64)
+    mean_b = (covered * b).sum() / c if c > 0 else torch.zeros((), dtype=torch.float64)
+    da, db = a - mean_a, b - mean_b
+    geo = [c, mean_a, mean_b, (covered * da * da).sum(), (covered * db * db).sum(),
+           (covered * da * db).sum()]  # fmt: skip
+    sums = [wh - ow for wh, ow in zip(whole, own, strict=True)] + geo
+    assert len(sums) == len(OUTSIDE_SUMS)
+    return torch.stack([s.to(torch.float64) for s in sums]).to(torch.float32)
+
+
+def windowed(
+    views: TrainViews, windows: list[ViewWindow], static: list[StaticRender]
+) -> TrainViews:
+    """``views`` (whole views) as their ``windows``, with the whole views' normalisers and
+    the sums outside each window (``outside_sums`` on the static set's renders)."""
+    outside, sums = [], []
+    for i, window in enumerate(windows):
+        previous = None if views.previous is None else views.previous[i]
+        outside.append(
+            outside_sums(
+                window, static[i], views.targets[i], views.weights[i], views.depth[i], previous
+            )
+        )
+        sums.append(views.weight_sum(i))
+    device = views.weights[0].device
+    return TrainViews(
+        cameras=[w.camera(c) for w, c in zip(windows, views.cameras, strict=True)],
+        targets=[w.crop(views.targets[i]) for i, w in enumerate(windows)],
+        weights=[w.crop(views.weights[i]) for i, w in enumerate(windows)],
+        depth=[w.crop(views.depth[i]) for i, w in enumerate(windows)],
+        previous=(
+            None
+            if views.previous is None
+            else [w.crop(views.previous[i]) for i, w in enumerate(windows)]
+        ),
+        weight_sums=torch.stack(sums).to(device),
+        outside=torch.stack(outside).to(device),
+    )
