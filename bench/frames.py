@@ -18,7 +18,7 @@ lifting, one curve per variant, a point per case).
 
     .venv/bin/python bench/frames.py [--base REV] [--kinds landscape room] [--frames 2 7 14]
         [--width 2048] [--preset draft] [--lake] [--balanced-step 14]
-        [--overrides JSON] [--json bench/out/frames.json]
+        [--overrides JSON] [--json bench/out/frames.json] [--keep]
 
 ``--balanced-step L``: balanced at 1024 wide with L frames and ``--balanced-iterations``
 steps per optimisation (the preset's step count would not fit this machine): the cost of a
@@ -181,10 +181,12 @@ def moving_share(scene_yaml: Path, output: Path) -> float:
     mask_path = scene_yaml.parent / "mask.png"
     if mask_path.is_file():
         mask = torch.from_numpy(read_mask(mask_path, w, h)).float()
-    else:
+    else:  # regions are in the panorama's pixels: its size, then the working size's area
+        from pano4d.images import image_size
         from pano4d.regions import moving_mask
 
-        mask = moving_mask(cfg, w, h).float()
+        full = moving_mask(cfg, *image_size(cfg.panorama)).float()
+        mask = torch.nn.functional.interpolate(full[None, None], size=(h, w), mode="area")[0, 0]
     size = int(metrics["knobs"]["view_size"])
     shares = []
     for cam in view_layout(cfg.lift.views, cfg.lift.fov_deg, size):
@@ -232,9 +234,14 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
     return out
 
 
-def measure(variant: Variant, case: dict[str, Any]) -> dict[str, Any]:
+def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any]:
     output = Path(case["output"])
-    wall = variant.train(case)
+    # --keep: a finished run of this variant and case is measured again, not retrained
+    # (its wall time is then the sum of its stages).
+    if keep and (output / "metrics.json").is_file():
+        wall = float(sum(json.loads((output / "metrics.json").read_text())["timings_s"].values()))
+    else:
+        wall = variant.train(case)
     metrics = json.loads((output / "metrics.json").read_text())
     timings = metrics["timings_s"]
     steps = steps_taken(output)
@@ -347,6 +354,8 @@ def main() -> None:
     parser.add_argument("--balanced-iterations", type=int, default=100)
     parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
     parser.add_argument("--json", type=Path, default=OUT / "frames.json")
+    parser.add_argument("--keep", action="store_true",
+                        help="measure finished runs again instead of retraining them")
     args = parser.parse_args()
     if args.child:
         train_case(json.loads(args.child))
@@ -361,7 +370,7 @@ def main() -> None:
         for variant in variants:
             slug = case["name"].replace(" ", "_").replace("(", "").replace(")", "")
             run = {**case, "output": str(OUT / "frames" / "runs" / f"{slug}_{variant.name}")}
-            rows.append(measure(variant, run))
+            rows.append(measure(variant, run, args.keep))
             print_row(rows[-1])
     write_json(args, rows)
     plot(args.json.with_suffix(".png"), rows)
