@@ -17,7 +17,6 @@ from pano4d.lift.optimize import GaussianTrainer, Knobs, Trainer, TrainViews
 from pano4d.lift.resident import ResidentTrainer
 from pano4d.lift.windows import (
     SSIM_MARGIN,
-    StaticRender,
     ViewWindow,
     reach_window,
     touching,
@@ -56,7 +55,7 @@ def scene() -> dict[str, object]:
     views = TrainViews([camera], target[None], torch.ones(1, H, W), depth[None], previous[None])
     window = reach_window(camera, torch.zeros(H, W), dynamic)
     s = render(static, camera)
-    windows = windowed(views, [window], [StaticRender(s.rgb, s.alpha, s.depth)])
+    windows = windowed(views, [window], [s])
     context = static[touching(static, windows.cameras)]
     return {
         "camera": camera, "static": static, "dynamic": dynamic, "views": views,

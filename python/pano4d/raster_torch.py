@@ -85,6 +85,30 @@ class Projected:
     rgb: torch.Tensor  # (M, 3)
 
 
+def ewa_covariance(
+    t: torch.Tensor, rz: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
+    camera: Camera,
+) -> torch.Tensor:
+    """The 2D covariance (N, 2, 2) of Gaussians at camera-space means ``t`` (N, 3) with
+    1/z ``rz`` (N,), before the low-pass: J W M Mᵀ Wᵀ Jᵀ with the Jacobian's x/z, y/z
+    clamped (module docstring), in ``t``'s dtype. lift.windows bounds footprints with it."""
+    W = camera.R.to(t)
+    tan_x, tan_y = camera.half_fov_tan
+    lim_x = JACOBIAN_CLAMP * tan_x
+    lim_y = JACOBIAN_CLAMP * tan_y
+    u = torch.clamp(t[:, 0] * rz, -lim_x, lim_x)
+    v = torch.clamp(t[:, 1] * rz, -lim_y, lim_y)
+    zero = torch.zeros_like(rz)
+    J = torch.stack([
+        camera.fx * rz, zero, -camera.fx * u * rz,
+        zero, camera.fy * rz, -camera.fy * v * rz,
+    ], dim=-1).reshape(-1, 2, 3)
+    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
+    M = quat_to_rotation(quats) * scales[:, None, :]
+    T = J @ W @ M
+    return T @ T.transpose(1, 2)
+
+
 def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype) -> Projected:
     """EWA projection, SH colour and culling (module docstring) in ``dtype``."""
     params = [t.to(dtype) for t in (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)]
@@ -102,20 +126,7 @@ def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype)
     z = t[:, 2]
     visible = finite & (z >= NEAR_PLANE)
     rz = 1.0 / torch.where(visible, z, torch.ones_like(z))
-    tan_x, tan_y = camera.half_fov_tan
-    lim_x = JACOBIAN_CLAMP * tan_x
-    lim_y = JACOBIAN_CLAMP * tan_y
-    u = torch.clamp(t[:, 0] * rz, -lim_x, lim_x)
-    v = torch.clamp(t[:, 1] * rz, -lim_y, lim_y)
-    zero = torch.zeros_like(rz)
-    J = torch.stack([
-        camera.fx * rz, zero, -camera.fx * u * rz,
-        zero, camera.fy * rz, -camera.fy * v * rz,
-    ], dim=-1).reshape(-1, 2, 3)
-    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
-    M = quat_to_rotation(quats) * scales[:, None, :]
-    T = J @ W @ M
-    cov = T @ T.transpose(1, 2)
+    cov = ewa_covariance(t, rz, log_scales, quats, camera)
     a0, b0, c0 = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det0 = a0 * c0 - b0 * b0
     a1, c1 = a0 + LOW_PASS, c0 + LOW_PASS

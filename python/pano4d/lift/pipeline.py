@@ -56,7 +56,7 @@ from pano4d.lift.optimize import (
     TrainViews,
 )
 from pano4d.lift.resident import ResidentTrainer
-from pano4d.lift.windows import StaticRender, reach_window, touching, windowed
+from pano4d.lift.windows import reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
@@ -440,11 +440,6 @@ class DynamicSets:
     logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
 
 
-def static_render(inputs: LiftInputs, static: Gaussians, camera: Camera) -> StaticRender:
-    out = inputs.render(static, camera)
-    return StaticRender(out.rgb, out.alpha, out.depth)
-
-
 def dynamic_iterations(full: int, t: int) -> int:
     """At most this many steps for timestamp t: the full count first, half for the
     warm-started later ones; the stop rule (``convergence``) may end either sooner."""
@@ -491,7 +486,7 @@ def fit_dynamic(
     # features are the whole view's): the static set's render of the views, once.
     windows = inputs.knobs.dynamic_windows and features is None
     with torch.no_grad():
-        static_renders = [static_render(inputs, static, c) for c in cams] if windows else []
+        static_renders = [inputs.render(static, c) for c in cams] if windows else []
     for t in range(len(done), total):
         dynamic = initial if t == 0 else done[-1]
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)

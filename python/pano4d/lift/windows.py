@@ -34,14 +34,8 @@ import torch
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import OUTSIDE_SUMS, SSIM_WINDOW, TrainViews, ssim_map
-from pano4d.raster_torch import (
-    JACOBIAN_CLAMP,
-    LOW_PASS,
-    MAX_LOG_SCALE,
-    MIN_LOG_SCALE,
-    NEAR_PLANE,
-    quat_to_rotation,
-)
+from pano4d.raster_torch import LOW_PASS, NEAR_PLANE, ewa_covariance
+from pano4d.renderer import RenderOutput
 
 SSIM_MARGIN = SSIM_WINDOW  # 2r + 1 pixels between the reach and the window's edge (above)
 # What the dynamic set may move or grow beyond its footprints during a stage, as a share of
@@ -90,19 +84,12 @@ def footprints(g: Gaussians, camera: Camera) -> tuple[torch.Tensor, torch.Tensor
     z = pc[:, 2]
     visible = z >= NEAR_PLANE
     rz = 1.0 / torch.where(visible, z, torch.ones_like(z))
-    tan_x, tan_y = camera.half_fov_tan
-    u = torch.clamp(pc[:, 0] * rz, -JACOBIAN_CLAMP * tan_x, JACOBIAN_CLAMP * tan_x)
-    v = torch.clamp(pc[:, 1] * rz, -JACOBIAN_CLAMP * tan_y, JACOBIAN_CLAMP * tan_y)
-    zero = torch.zeros_like(rz)
-    J = torch.stack([
-        camera.fx * rz, zero, -camera.fx * u * rz,
-        zero, camera.fy * rz, -camera.fy * v * rz,
-    ], dim=-1).reshape(-1, 2, 3)  # fmt: skip
-    log_scales = g.log_scales.detach().to("cpu", torch.float64)
-    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
-    M = quat_to_rotation(g.quats.detach().to("cpu", torch.float64)) * scales[:, None, :]
-    T = J @ camera.R @ M
-    cov = T @ T.transpose(1, 2)
+    cov = ewa_covariance(
+        pc, rz,
+        g.log_scales.detach().to("cpu", torch.float64),
+        g.quats.detach().to("cpu", torch.float64),
+        camera,
+    )  # fmt: skip
     a, b, c = cov[:, 0, 0] + LOW_PASS, cov[:, 0, 1], cov[:, 1, 1] + LOW_PASS
     mid = 0.5 * (a + c)
     lam = mid + torch.sqrt(torch.clamp(mid * mid - (a * c - b * b), min=0.1))
@@ -157,19 +144,9 @@ def reach_window(camera: Camera, moving: torch.Tensor, dynamic: Gaussians) -> Vi
     return ViewWindow(start[0], start[1], end[0] - start[0], end[1] - start[1])
 
 
-@dataclass(frozen=True)
-class StaticRender:
-    """The static set's render of a whole view: what a dynamic step leaves outside its
-    window."""
-
-    rgb: torch.Tensor  # (H, W, 3)
-    alpha: torch.Tensor  # (H, W)
-    depth: torch.Tensor  # (H, W) expected z-depth
-
-
 def outside_sums(
     window: ViewWindow,
-    static: StaticRender,
+    static: RenderOutput,
     target: torch.Tensor,
     weight: torch.Tensor,
     depth: torch.Tensor,
@@ -207,7 +184,7 @@ def outside_sums(
 
 
 def windowed(
-    views: TrainViews, windows: list[ViewWindow], static: list[StaticRender]
+    views: TrainViews, windows: list[ViewWindow], static: list[RenderOutput]
 ) -> TrainViews:
     """``views`` (whole views) as their ``windows``, with the whole views' normalisers and
     the sums outside each window (``outside_sums`` on the static set's renders)."""
