@@ -44,7 +44,7 @@ def _log(name: str, start: int, steps: int, terms: list[str]) -> TrainLog:
 
 def test_a_log_survives_its_checkpoint_form() -> None:
     log = _log("static", 100, 50, ["total", "l1", "geo"])
-    log.densify.append(DensifyStats(20, 100, 3, 10, 0, 107, 1000, 90, 0.02, "share"))
+    log.densify.append(DensifyStats(20, 100, 3, 6, 4, 0, 107, 1000, 10, 90, 0.02, "gradient"))
     log.stop = Stop(50, "converged", 0.004)
     again = TrainLog.from_dict(json.loads(json.dumps(log.to_dict())))
     assert again == log
@@ -79,8 +79,8 @@ def test_the_plot_draws_one_curve_per_active_term(tmp_path: Path) -> None:
 def test_the_densify_log_adds_up(tmp_path: Path) -> None:
     log = _log("static", 1000, 30, ["total"])
     log.densify += [
-        DensifyStats(10, 1000, 20, 100, 0, 1080, 1100, 900, 0.01, "share"),
-        DensifyStats(20, 1080, 5, 60, 35, 1100, 1100, 1000, 0.02, "budget"),
+        DensifyStats(10, 1000, 20, 60, 40, 0, 1080, 1100, 100, 900, 0.01, "gradient"),
+        DensifyStats(20, 1080, 5, 40, 20, 35, 1100, 1100, 90, 1000, 0.02, "budget"),
     ]
     write_diagnosis(tmp_path, [(log, 1100)])
     lines = [json.loads(line) for line in (tmp_path / "densify.jsonl").read_text().splitlines()]
@@ -88,7 +88,7 @@ def test_the_densify_log_adds_up(tmp_path: Path) -> None:
     count = lines[0]["gaussians"]
     for line in lines[1:-1]:
         assert line["before"] == count
-        count = count - line["pruned"] + line["split"] - line["clipped"]
+        count = count - line["pruned"] + line["split"] + line["cloned"] - line["clipped"]
         assert line["after"] == count
     assert count == lines[-1]["gaussians"] == 1100
     losses = json.loads((tmp_path / "losses.json").read_text())
@@ -100,7 +100,7 @@ DENSIFYING = {
     "view_size": 16,
     "init_stride": 2,
     "align_iterations": 20,
-    "gaussian_iterations": 40,  # densify_every 10: densify-and-prune after steps 10 and 20
+    "gaussian_iterations": 40,  # densify-and-prune from step 8 to 20 (20 % to 50 %)
     "max_gaussians": 5000,
     "densify": True,
 }
@@ -137,14 +137,22 @@ def test_a_run_writes_its_diagnosis_beside_metrics_json(scene_dir: Path, tmp_pat
     # the counts add up from one to the next, and every timestamp starts from t − 1's result.
     for name, count in zip(names, stored, strict=True):
         own = [line for line in lines if line["optimisation"] == name]
-        steps = [10, 20] if name in names[:2] else [10]  # 40 steps, then 20 (warm-started)
+        steps = [line["step"] for line in own[1:-1]]
         assert [line["event"] for line in own] == ["start"] + ["densify"] * len(steps) + ["end"]
-        assert [line["step"] for line in own[1:-1]] == steps, name
+        if name == "static":  # one pass over the 20 views between two densify-and-prunes
+            assert steps == [20]
+        elif name == "dynamic t=0":  # every max(10, views seeing motion) steps in 8…20
+            assert steps and steps[0] >= 10, steps
+            assert steps == list(range(steps[0], 21, steps[0])), steps
+        else:  # warm-started from t − 1's densified set: no growth again
+            assert steps == []
         gaussians = own[0]["gaussians"]
         for line in own[1:-1]:
             assert line["before"] == gaussians
-            assert line["split"] > 0 and line["limit"] == "share"
-            gaussians = line["before"] - line["pruned"] + line["split"] - line["clipped"]
+            assert line["split"] + line["cloned"] > 0 and line["limit"] == "gradient"
+            gaussians = (
+                line["before"] - line["pruned"] + line["split"] + line["cloned"] - line["clipped"]
+            )
             assert line["after"] == gaussians
         assert own[-1]["gaussians"] == gaussians == count, name
     starts = {line["optimisation"]: line["gaussians"] for line in lines if line["event"] == "start"}

@@ -16,12 +16,17 @@ from pano4d.lift.initial import (
     points_in_mask,
 )
 from pano4d.lift.optimize import (
+    DENSIFY_GRADIENT,
+    SPLIT_FACTOR,
+    SPLIT_PIXELS,
+    Densified,
     GaussianTrainer,
     Knobs,
     TrainViews,
     moved_camera,
     pearson_loss,
     sem_alpha,
+    split_and_prune,
 )
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.regions import moving_in_video
@@ -134,6 +139,67 @@ def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> Non
     assert len(out) <= knobs.max_gaussians
     assert bool((torch.sigmoid(out.opacity_logits) > 0.005).all())
     assert math.isfinite(trainer.last_loss)
+
+
+def _densify_case(
+    sizes_px: list[float], gradients: list[float], budget: int
+) -> tuple[Gaussians, Densified]:
+    """Gaussians 10 units out whose σ spans ``sizes_px`` working pixels (1 mrad each), each
+    seen by 4 steps with mean position gradient ``gradients``, through one decision."""
+    n = len(sizes_px)
+    pixel = 1e-3
+    unit = torch.full((n,), 10.0)
+    sigma = torch.tensor(sizes_px) * pixel * 10.0
+    g = Gaussians(
+        means=torch.tensor([[10.0, 0.1 * i, 0.0] for i in range(n)]),
+        log_scales=torch.stack([sigma.log(), sigma.log(), (0.1 * sigma).log()], -1),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * n),
+        opacity_logits=torch.zeros(n),
+        sh=torch.zeros(n, 1, 3),
+    )
+    count = torch.full((n,), 4.0)
+    knobs = Knobs(iterations=10, max_gaussians=budget, pixel_angle=pixel)
+    decision = split_and_prune(
+        g, unit, torch.tensor(gradients) * count, count, knobs, torch.Generator(), 5
+    )
+    return g, decision
+
+
+def test_densification_grows_where_the_gradient_is_and_stops_where_the_fit_is_done() -> None:
+    """The rule (3DGS's, in screen-space units): Gaussians whose mean gradient is under
+    DENSIFY_GRADIENT are left alone, so a fitted set does not grow whatever its budget;
+    those over it are split when they span more than SPLIT_PIXELS working pixels (two
+    children 1/SPLIT_FACTOR the size) and cloned when smaller (the original stays)."""
+    under, over = 0.5 * DENSIFY_GRADIENT, 2 * DENSIFY_GRADIENT
+    large, small = 3 * SPLIT_PIXELS, 0.5 * SPLIT_PIXELS
+    g, fitted = _densify_case([large, small, large], [under, under, 0.0], budget=10_000)
+    assert len(fitted.gaussians) == len(g) and not bool(fitted.child.any())
+    assert fitted.stats.limit == "gradient" and fitted.stats.candidates == 0
+    assert fitted.stats.seen == 3  # every one was seen by some step
+
+    g, grown = _densify_case([large, small, large, small], [over, over, under, under], 10_000)
+    s = grown.stats
+    assert (s.split, s.cloned, s.candidates, s.after) == (1, 1, 2, 6), s
+    assert s.limit == "gradient" and s.threshold == pytest.approx(over)
+    # The large one is gone, replaced by two children 1/SPLIT_FACTOR its size near it.
+    assert sorted(grown.source.tolist()) == [0, 0, 1, 1, 2, 3]
+    children = grown.gaussians[(grown.source == 0)]
+    assert torch.allclose(children.log_scales, g.log_scales[0] - math.log(SPLIT_FACTOR))
+    assert bool(grown.child[grown.source == 0].all())
+    # The small one is kept (its moments with it) and copied (moments from zero).
+    clone_rows = grown.source == 1
+    assert sorted(grown.child[clone_rows].tolist()) == [False, True]
+    for copy in grown.gaussians[clone_rows].tensors().values():
+        assert torch.equal(copy[0], copy[1])
+
+
+def test_densification_spends_the_budget_on_the_largest_gradients_first() -> None:
+    sizes = [3 * SPLIT_PIXELS] * 4
+    gradients = [g * DENSIFY_GRADIENT for g in (2.0, 8.0, 4.0, 1.5)]
+    _, d = _densify_case(sizes, gradients, budget=6)  # room for 2 of the 4 candidates
+    assert d.stats.limit == "budget" and d.stats.candidates == 4 and d.stats.split == 2
+    assert sorted(set(d.source[d.child].tolist())) == [1, 2]  # the 8× and 4× ones
+    assert len(d.gaussians) == 6 and d.stats.clipped == 0
 
 
 def test_semantic_loss_runs_with_a_tiny_dinov2_once_the_schedule_starts(tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -63,6 +63,11 @@ def test_train_writes_the_run_files_with_a_shared_static_set(
     views = on_disk["novel_views"]["by_displacement"]
     assert set(views) == {"1%", "5%"} and all(v["psnr"] > 5 for v in views.values())
     assert on_disk["saving"]["storage_ratio"] < 1.0
+    # The scene's limits: the fit to the working panorama, and what that holds of the input
+    # (the working panorama is narrower than the 128-wide input here).
+    fit = on_disk["training_fit"]
+    assert fit["working_size"] == on_disk["working_size"] and fit["input_size"] == [128, 64]
+    assert 10 < fit["fit_psnr"] < 60 and 10 < fit["resolution_psnr"] < 60
 
     scene = ply4d.read(out / "scene.ply4d")
     assert scene.num_times == 3
@@ -156,6 +161,22 @@ def test_the_train_command_ends_with_a_summary_table(scene_dir: Path, tmp_path: 
     assert rows["Gaussians"].startswith(f"{metrics['gaussians']['stored']:,} stored")
     one = metrics["novel_views"]["by_displacement"]["1%"]
     assert rows["novel views"].startswith(f"{one['psnr']:.1f} dB PSNR, SSIM {one['ssim']:.3f}")
+    fit = metrics["training_fit"]
+    assert rows["limits"].startswith("the Gaussians fit the ")
+    assert f"working panorama to {fit['fit_psnr']:.1f} dB" in rows["limits"]
     assert rows["output"] == str(output)
     assert rows["files"] == "scene.ply4d, preview.mp4, contact.png, loss.png, metrics.json"
     assert '"config_hash"' not in result.output and '"timings_s"' not in result.output
+
+
+def test_the_summary_names_the_lever_of_the_larger_error() -> None:
+    """More Gaussians when the fit to the working panorama is the worse of the two limits,
+    a finer working panorama when the resampling loses more, and more Gaussians when the
+    working panorama is the input's own size."""
+    from pano4d.summary import limits
+
+    sizes = {"working_size": [576, 288], "input_size": [4096, 2048]}
+    assert "more Gaussians" in limits({**sizes, "fit_psnr": 26.0, "resolution_psnr": 31.0})
+    assert "finer working panorama" in limits({**sizes, "fit_psnr": 33.0, "resolution_psnr": 31.0})
+    same = {"working_size": [1024, 512], "input_size": [1024, 512]}
+    assert "more Gaussians" in limits({**same, "fit_psnr": 40.0, "resolution_psnr": None})

@@ -44,7 +44,7 @@ PRESETS: dict[str, dict[str, int | float | bool]] = {
         "gaussian_iterations": 100,
         "max_gaussians": 100_000,
         "sh_degree": 0,
-        "densify": False,
+        "densify": True,
         "lambda_temporal": 0.1,
         "lambda_geo": 0.05,
         "lambda_sem": 0.0,
@@ -106,7 +106,7 @@ class OptimisationKnobs(BaseModel):
     lambda_geo: float = 0.0  # weight of L_geo
     lambda_sem: float = 0.0  # weight of L_sem (with a feature backend)
     lambda_dssim: float = 0.2  # the D-SSIM share of L_rgb (3DGS's)
-    densify: bool = False  # split and prune during optimisation
+    densify: bool = False  # split or clone where the fit is not done, and prune, while training
     # End each warm-started dynamic set once its loss has converged (lift/convergence.py)
     # instead of always at the count; off in every preset until measured at balanced (at
     # draft it saved 10 % of the steps and lost up to 0.5 dB on the frames it stopped early,
@@ -124,7 +124,7 @@ class OptimisationKnobs(BaseModel):
 
 class StageKnobs(BaseModel):
     """What the lifting stages are sized by: the views, the initial Gaussians, the steps,
-    the budget and the colour's degree (what the presets differ in, with densify)."""
+    the budget and the colour's degree (what the presets differ in)."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 

@@ -54,6 +54,8 @@ def run_table(metrics: dict[str, Any], output: Path, title: str = "pano4d train"
         for moved, v in views.items()
     )
     table.add_row("novel views", quality or "no ground truth (gt/views.json) beside the panorama")
+    if "training_fit" in metrics:
+        table.add_row("limits", limits(metrics["training_fit"]))
     table.add_row("output", Text(str(output)))
     files = [name for name in RUN_FILES if (output / name).is_file()]
     table.add_row("files", Text(", ".join(files)))
@@ -63,6 +65,21 @@ def run_table(metrics: dict[str, Any], output: Path, title: str = "pano4d train"
 def _by_displacement(metrics: dict[str, Any]) -> dict[str, dict[str, float]]:
     views = metrics.get("novel_views") or {}
     return dict(views.get("by_displacement") or {})
+
+
+def limits(fit: dict[str, Any]) -> str:
+    """What bounds the scene's quality (``lift.export.training_fit``), and so which lever
+    would raise it: the Gaussians' fit to the working panorama, or the working panorama's
+    resolution against the input's."""
+    (ww, wh), (iw, ih) = fit["working_size"], fit["input_size"]
+    text = f"the Gaussians fit the {ww}×{wh} working panorama to {fit['fit_psnr']:.1f} dB"
+    more = "more Gaussians would help most (densify, init_stride, max_gaussians)"
+    resolution = fit.get("resolution_psnr")
+    if resolution is None:
+        return f"{text} (the input's own size): {more}"
+    finer = "a finer working panorama would help most (a larger view_size or preset)"
+    lever = more if fit["fit_psnr"] < resolution else finer
+    return f"{text}; it holds {resolution:.1f} dB of the {iw}×{ih} input: {lever}"
 
 
 def duration(value: float | None) -> str:

@@ -6,9 +6,10 @@ densify-and-prune. The log is part of the trainer's checkpoint, so a resumed run
 uninterrupted run's. ``write_diagnosis`` writes
 
 - ``densify.jsonl``: per optimisation a ``start`` line (its Gaussians), a ``densify`` line
-  per densify-and-prune (pruned for opacity, split for their position gradient and from which
-  mean gradient on, clipped by the budget) and an ``end`` line (what it stored, where it
-  stopped and why), so that start + Σ (added − pruned − clipped) = end;
+  per densify-and-prune (pruned for opacity, split or cloned for their screen-space gradient
+  and from which gradient on, clipped by the budget, and whether the gradient or the budget
+  limited it) and an ``end`` line (what it stored, where it stopped and why), so that
+  start + Σ (split + cloned − pruned − clipped) = end;
 - ``losses.json``: the loss curves and each optimisation's stop (``convergence.Stop``);
 - ``loss.png``: those curves, a panel for the static set and one for the dynamic sets (the
   timestamps one after another), one curve per active term, densification steps dotted, a
@@ -54,18 +55,22 @@ TERM_NAMES = {
 
 @dataclass(frozen=True)
 class DensifyStats:
-    """One densify-and-prune: counts and the gradient the split Gaussians reached."""
+    """One densify-and-prune: counts and the gradient the densified Gaussians reached."""
 
     step: int
     before: int  # Gaussians going in
     pruned: int  # dropped for opacity below PRUNE_OPACITY
-    split: int  # parents split in two (each parent is replaced by two children)
+    split: int  # large ones split in two (each parent is replaced by two children)
+    cloned: int  # small ones copied (the original stays)
     clipped: int  # dropped afterwards to stay within the budget (the least opaque)
-    after: int  # Gaussians coming out: before − pruned + split − clipped
+    after: int  # Gaussians coming out: before − pruned + split + cloned − clipped
     budget: int
-    candidates: int  # surviving Gaussians with a position gradient (seen by some view)
-    threshold: float | None  # smallest mean position gradient among the split ones
-    limit: str  # what bounded the split count: "share" (a tenth of the candidates) or "budget"
+    candidates: int  # surviving Gaussians whose mean gradient reached DENSIFY_GRADIENT
+    seen: int  # surviving Gaussians some view gave a position gradient since the last one
+    threshold: float | None  # smallest mean position gradient among the densified ones
+    # What bounded the count densified: "gradient" (every candidate was: the scene's need)
+    # or "budget" (no room for all of them; the largest gradients went first).
+    limit: str
 
 
 @dataclass

@@ -11,6 +11,7 @@ optimisation (``lift.diagnosis``: densify.jsonl, losses.json, loss.png).
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,8 @@ from pano4d.lift.pipeline import (
     StepHook,
 )
 from pano4d.metrics import novel_view_metrics
+from pano4d.resample import equirect_to_perspective
+from pano4d.sphere import view_layout
 
 PREVIEW_FRAMES = 24  # per turntable (origin, then the displaced orbit)
 PREVIEW_ORBIT = 0.01  # orbit radius as a fraction of the median scene depth
@@ -104,11 +107,12 @@ def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
     stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
     write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
     wrote()
+    fit = training_fit(inputs, scene)
     timings = {**lifted.timings, "export": time.perf_counter() - start}
 
     metrics = run_metrics(
         inputs, scene, alignment, initial, static, dynamic, timings, out / "scene.ply4d",
-        metrics_views,
+        metrics_views, fit,
     )  # fmt: skip
     metrics["resumed_at"] = lifted.resumed_at
     write_json_atomic(out / "metrics.json", metrics)
@@ -182,6 +186,48 @@ def contact_cameras(inputs: LiftInputs, median_depth: float, count: int = 4) -> 
     return cams
 
 
+def training_fit(inputs: LiftInputs, scene: ply4d.Scene4D) -> dict[str, Any]:
+    """The two limits of what a scene can show, from its training data alone (a real
+    panorama has no ground truth; bench/quality.py's layout fit and resampling ceiling are
+    their twins against one). ``fit_psnr``: the Gaussians at t = 0 rendered at the training
+    views against the working panorama they were fitted to. ``resolution_psnr``: the working
+    panorama against the input, both resampled into the same views at the input's
+    resolution, over the pixels that do not move (None when the working panorama is the
+    input's own size). The larger error of the two says where more quality would come from:
+    more Gaussians, or a finer working panorama."""
+    frame0 = inputs.frames[0].permute(2, 0, 1).to(torch.float32)
+    g = scene.at(0).to(inputs.device)
+    squared, count = 0.0, 0
+    with torch.no_grad():
+        for cam in inputs.cameras:
+            target = equirect_to_perspective(frame0, cam).permute(1, 2, 0)
+            rgb = inputs.render(g, cam).rgb.clamp(0, 1).cpu()
+            squared += float(((rgb - target) ** 2).sum())
+            count += target.numel()
+    fit = 10 * math.log10(1.0 / max(squared / max(count, 1), 1e-12))
+    working_w = int(frame0.shape[2])
+    panorama = torch.from_numpy(read_image(inputs.cfg.panorama)).permute(2, 0, 1)
+    input_w = int(panorama.shape[2])
+    resolution = None
+    if input_w > working_w:
+        size = round(inputs.knobs.view_size * input_w / working_w)
+        still = (~inputs.moving).to(torch.float32)
+        squared, count = 0.0, 0
+        for cam in view_layout(len(inputs.cameras), inputs.cfg.lift.fov_deg, size):
+            keep = equirect_to_perspective(still, cam) > 0.999
+            error = equirect_to_perspective(frame0, cam) - equirect_to_perspective(panorama, cam)
+            squared += float((error**2 * keep).sum())
+            count += 3 * int(keep.sum())
+        if count:
+            resolution = 10 * math.log10(1.0 / max(squared / count, 1e-12))
+    return {
+        "fit_psnr": fit,
+        "resolution_psnr": resolution,
+        "working_size": [working_w, int(frame0.shape[1])],
+        "input_size": [input_w, int(panorama.shape[1])],
+    }
+
+
 def run_metrics(
     inputs: LiftInputs,
     scene: ply4d.Scene4D,
@@ -192,9 +238,10 @@ def run_metrics(
     timings: dict[str, float],
     path: Path,
     views: dict[str, Any] | None,
+    fit: dict[str, Any],
 ) -> dict[str, Any]:
-    """metrics.json: what the run took and made, and what storing the static set once saved
-    against storing (and training) every timestamp whole."""
+    """metrics.json: what the run took and made, what storing the static set once saved
+    against storing (and training) every timestamp whole, and its limits (``training_fit``)."""
     n_static = len(scene.static)
     n_dynamic = [len(g) for g in scene.dynamic]
     stored = n_static + sum(n_dynamic)
@@ -229,4 +276,5 @@ def run_metrics(
             "train_ratio": spent / whole_seconds if whole_seconds > 0 else None,
         },
         "novel_views": views,
+        "training_fit": fit,
     }

@@ -18,11 +18,13 @@ frozen context (the static set while a timestamp's dynamic set trains): the cont
 rendered with them but gets no gradient. Positions are optimised as offsets in units of each
 Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and one at 1000 m.
 
-Densify and prune (when enabled) run every ``densify_every`` steps between 20 % and 70 % of
-the iterations: prune near-transparent Gaussians, split those with the largest accumulated
-position gradient into two smaller ones, and keep the count within ``max_gaussians``
+Densify and prune (when enabled) run every ``densify_every`` steps between 20 % and 50 % of
+the iterations (the second half lets the last children settle, as in 3DGS's schedule): prune
+near-transparent Gaussians, split (large) or clone (small) those whose mean screen-space
+position gradient is over DENSIFY_GRADIENT, and keep the count within ``max_gaussians``
 (``split_and_prune``, shared with the resident trainer). Adam's moments move with their
-Gaussians: survivors keep theirs, split children start at zero, the step count goes on.
+Gaussians: survivors keep theirs, split children and clones start at zero, the step count
+goes on.
 For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last loss terms in
 ``last_terms`` and its last densify-and-prune's counts in ``last_densify``.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
@@ -48,6 +50,17 @@ from pano4d.lift.diagnosis import DensifyStats
 SSIM_WINDOW = 11
 SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iterations, α)
 PRUNE_OPACITY = 0.005
+# Densification (3DGS's rule in screen-space units that do not depend on the view's size).
+# A Gaussian's statistic is its mean ‖∂L/∂o‖ across the ray over the steps that saw it (o:
+# its position offset in units of its initial distance; the views look out from the origin,
+# so that is per radian of its direction on the screen, as 3DGS's 2-D mean), times the
+# view's pixels and radians per pixel (Knobs.gradient_scale): how much the loss summed over
+# the view's pixels changes when the Gaussian moves by one pixel. A Gaussian fitted to what
+# the pixels can show (a pixel-sized edge) changes the sum by its contrast times a pixel or
+# two; over DENSIFY_GRADIENT the fit is not done there. (3DGS's 2·10⁻⁴ per NDC unit of the
+# mean loss, on its ≈ 1.2-MPixel images, is ≈ 0.3 in these units.)
+DENSIFY_GRADIENT = 0.3
+SPLIT_PIXELS = 1.0  # σ over this many working pixels: split; smaller: clone
 SPLIT_FACTOR = 1.6
 ADAM_EPS = 1e-15  # 3DGS's
 ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, what 3DGS trains with
@@ -115,6 +128,9 @@ class Knobs(OptimisationKnobs):
 
     iterations: int
     max_gaussians: int = 1_000_000  # this set's budget
+    pixel_angle: float = 0.0  # radians per working-panorama pixel (0: every Gaussian splits)
+    # The views' pixels × radians per pixel: the statistic's unit (DENSIFY_GRADIENT).
+    gradient_scale: float = 1.0
     densify_every: int = 100
     sem_scale: float = 1.0  # world units of δ = 1 (median scene depth)
 
@@ -193,13 +209,21 @@ def sem_alpha(step: int, iterations: int) -> float:
     return alpha
 
 
+def screen_gradient(grad: torch.Tensor, means: torch.Tensor) -> torch.Tensor:
+    """‖grad‖ across the ray from the origin to ``means`` (N, 3): the part of a position
+    gradient that moves a Gaussian on the screen of the views, which look out from the
+    origin (the densification statistic's step; adam.wgsl computes the same)."""
+    ray = F.normalize(means, dim=-1)
+    return torch.linalg.norm(grad - (grad * ray).sum(-1, keepdim=True) * ray, dim=-1)
+
+
 def densify_due(knobs: Knobs, step: int) -> bool:
     """Whether densification runs after ``step`` steps: every ``densify_every`` steps
-    between 20 % and 70 % of the iterations, when enabled."""
+    between 20 % and 50 % of the iterations, when enabled."""
     if not knobs.densify or knobs.densify_every <= 0:
         return False
     return (
-        0.2 * knobs.iterations <= step <= 0.7 * knobs.iterations
+        0.2 * knobs.iterations <= step <= 0.5 * knobs.iterations
         and step % knobs.densify_every == 0
     )
 
@@ -227,26 +251,32 @@ def split_and_prune(
     unit: torch.Tensor,
     grad_accum: torch.Tensor,
     grad_count: torch.Tensor,
-    max_gaussians: int,
+    knobs: Knobs,
     generator: torch.Generator,
     step: int,
 ) -> Densified:
-    """One densify-and-prune (both trainers call this, after ``step`` steps): drop
-    near-transparent Gaussians, split those with the largest mean position gradient into two
-    smaller jittered children, and keep at most ``max_gaussians`` (the most opaque)."""
+    """One densify-and-prune (both trainers call this, after ``step`` steps).
+
+    Drop the near-transparent Gaussians; densify every survivor whose mean position gradient
+    reached DENSIFY_GRADIENT (the fit is not done there): split it into two smaller jittered
+    children when it spans more than SPLIT_PIXELS working pixels, else clone it (a copy whose
+    Adam moments start at zero, so the two part). When the budget has no room for all of
+    them, the ones with the largest gradients go first. Keep at most ``max_gaussians`` (the
+    most opaque)."""
     keep = torch.sigmoid(g.opacity_logits) > PRUNE_OPACITY
-    mean_grad = grad_accum / grad_count.clamp(min=1)
-    room = max_gaussians - int(keep.sum())
-    split = torch.zeros_like(keep)
-    candidates = keep & (mean_grad > 0)
-    share = int(candidates.sum()) // 10  # at most a tenth of the candidates split at once
-    if room > 0:
-        count = min(room, share)
-        if count > 0:
-            score = torch.where(candidates, mean_grad, torch.zeros_like(mean_grad))
-            split[torch.topk(score, count).indices] = True
+    mean_grad = grad_accum / grad_count.clamp(min=1) * knobs.gradient_scale
+    room = max(knobs.max_gaussians - int(keep.sum()), 0)
+    candidates = keep & (mean_grad >= DENSIFY_GRADIENT)
+    chosen = torch.zeros_like(keep)
+    count = min(room, int(candidates.sum()))
+    if count > 0:
+        score = torch.where(candidates, mean_grad, torch.full_like(mean_grad, -1.0))
+        chosen[torch.topk(score, count).indices] = True
+    angular = g.log_scales.max(dim=-1).values.exp() / unit
+    large = angular > SPLIT_PIXELS * knobs.pixel_angle
+    split, clone = chosen & large, chosen & ~large
     rows = torch.arange(len(g), device=g.device)
-    survivors = keep & ~split
+    survivors = keep & ~split  # a cloned Gaussian stays, with its moments
     parts, units, sources = [g[survivors]], [unit[survivors]], [rows[survivors]]
     children = [torch.zeros(int(survivors.sum()), dtype=torch.bool, device=g.device)]
     if split.any():
@@ -265,20 +295,26 @@ def split_and_prune(
             )
             units.append(unit[split])
             sources.append(rows[split])
-            children.append(torch.ones(len(parent), dtype=torch.bool, device=g.device))
+            children.append(torch.ones(int(split.sum()), dtype=torch.bool, device=g.device))
+    if clone.any():
+        parts.append(g[clone])
+        units.append(unit[clone])
+        sources.append(rows[clone])
+        children.append(torch.ones(int(clone.sum()), dtype=torch.bool, device=g.device))
     merged = Gaussians.cat(parts)
     merged_units, source, child = torch.cat(units), torch.cat(sources), torch.cat(children)
     grown = len(merged)
-    if len(merged) > max_gaussians:
-        top = torch.topk(merged.opacity_logits, max_gaussians).indices
+    if len(merged) > knobs.max_gaussians:
+        top = torch.topk(merged.opacity_logits, knobs.max_gaussians).indices
         merged, merged_units = merged[top], merged_units[top]
         source, child = source[top], child[top]
     stats = DensifyStats(
         step=step, before=len(g), pruned=int((~keep).sum()), split=int(split.sum()),
-        clipped=grown - len(merged), after=len(merged), budget=max_gaussians,
-        candidates=int(candidates.sum()),
-        threshold=float(mean_grad[split].min()) if split.any() else None,
-        limit="share" if share <= room else "budget",
+        cloned=int(clone.sum()), clipped=grown - len(merged), after=len(merged),
+        budget=knobs.max_gaussians, candidates=int(candidates.sum()),
+        seen=int((keep & (grad_count > 0)).sum()),
+        threshold=float(mean_grad[chosen].min()) if chosen.any() else None,
+        limit="budget" if count < int(candidates.sum()) else "gradient",
     )  # fmt: skip
     return Densified(merged, merged_units, source, child, stats)
 
@@ -468,7 +504,8 @@ class GaussianTrainer(Trainer):
         loss.backward()
         grad = self.params["offsets"].grad
         if grad is not None:
-            norm = torch.linalg.norm(grad, dim=-1)
+            means = self.anchors + self.params["offsets"].detach() * self.unit[:, None]
+            norm = screen_gradient(grad, means)
             self.grad_accum += norm
             self.grad_count += (norm > 0).to(norm.dtype)
         self.optimiser.step()
@@ -486,7 +523,7 @@ class GaussianTrainer(Trainer):
                 self.unit,
                 self.grad_accum,
                 self.grad_count,
-                self.knobs.max_gaussians,
+                self.knobs,
                 self.generator,
                 self.step,
             )

@@ -299,14 +299,27 @@ def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> No
     trainer.load_state_dict(state["trainer"])
 
 
-def trainer_knobs(knobs: PresetKnobs, iterations: int, budget: int, median_depth: float) -> Knobs:
+def trainer_knobs(
+    knobs: PresetKnobs,
+    iterations: int,
+    budget: int,
+    median_depth: float,
+    cameras: list[Camera],
+    working_width: int,
+) -> Knobs:
     """One stage's optimisation knobs: the preset's optimisation knobs as they are, and this
-    stage's steps, budget, densification interval and L_sem scale."""
+    stage's steps, budget, densification interval and units, and L_sem scale. ``cameras``:
+    the whole views the stage trains on."""
+    view = cameras[0]
     return Knobs(
         **{name: getattr(knobs, name) for name in OptimisationKnobs.model_fields},
         iterations=iterations,
         max_gaussians=max(1, budget),
-        densify_every=max(10, iterations // 10),
+        # At least one pass over the views between two densify-and-prunes: room for the
+        # children to settle before their gradients are judged.
+        densify_every=max(10, iterations // 10, len(cameras)),
+        pixel_angle=2 * math.pi / working_width,
+        gradient_scale=view.width * view.height / float(view.fx),
         sem_scale=median_depth,
     )
 
@@ -403,7 +416,14 @@ def fit_static(
         inputs.trainer,
         initial,
         views,
-        trainer_knobs(knobs, iterations, knobs.max_gaussians, median_depth),
+        trainer_knobs(
+            knobs,
+            iterations,
+            knobs.max_gaussians,
+            median_depth,
+            inputs.cameras,
+            inputs.frames.shape[2],
+        ),
         inputs.render,
         features=make_feature_model(inputs.cfg.features, inputs.device),
         seed=inputs.cfg.seed,
@@ -500,11 +520,17 @@ def fit_dynamic(
             views = windowed(views, reach, static_renders)
             context = static[touching(static, views.cameras)]
         iterations = dynamic_iterations(full, t)
+        stage = trainer_knobs(
+            inputs.knobs, iterations, budget, median_depth, cams, inputs.frames.shape[2]
+        )
+        # A later timestamp starts from t − 1's set, densified where the region needed it:
+        # densifying it again would compound over the frames.
+        stage = stage.model_copy(update={"densify": stage.densify and t == 0})
         trainer = make_trainer(
             inputs.trainer,
             dynamic,
             views,
-            trainer_knobs(inputs.knobs, iterations, budget, median_depth),
+            stage,
             inputs.render,
             context=context,
             features=features,

@@ -245,7 +245,7 @@ class ResidentTrainer(Trainer):
                 s["unit"],
                 s["grad_accum"],
                 s["grad_count"],
-                self.knobs.max_gaussians,
+                self.knobs,
                 self.generator,
                 self.step,
             )

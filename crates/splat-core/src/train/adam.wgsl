@@ -15,7 +15,8 @@
 // Adam's step Δo moves the mean by unit·Δo. So Adam here runs on g_o (the moments are
 // the torch trainer's moments of the offsets) and adds unit·Δo to the mean: the same
 // update in exact arithmetic, without storing anchors and offsets. The accumulated
-// densification statistic is torch's too: ‖g_o‖ and whether it is non-zero.
+// densification statistic is torch's too: the norm of g_o across the ray from the origin
+// (the training views' centre: the screen-space part, as 3DGS's) and whether it is non-zero.
 //
 // The scene holds the frozen context first (`n_context` Gaussians, never updated) and the
 // trained set after it; the scene's SoA sections are `stride` long, the gradients'
@@ -54,7 +55,7 @@ struct AdamParams {
 @group(0) @binding(4) var<storage, read_write> exp_avg: array<f32>;
 @group(0) @binding(5) var<storage, read_write> exp_avg_sq: array<f32>;
 @group(0) @binding(6) var<storage, read> unit: array<f32>;
-// Accumulated ‖g_o‖ (first n_train) and count of non-zero ones (next n_train).
+// Accumulated ‖g_o‖ across the ray (first n_train) and count of non-zero ones (next n_train).
 @group(0) @binding(7) var<storage, read_write> stats: array<f32>;
 
 fn gradient(i: u32) -> f32 {
@@ -94,15 +95,18 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let m = gaussian_offsets(ap.n_train);
     let k = ap.sh_coeffs;
 
-    // Means, through the offsets (see the header).
+    // Means, through the offsets (see the header). The densification statistic is the
+    // gradient's part across the ray from the views' centre (the origin), before the update.
     let u = unit[i];
-    var norm2 = 0.0;
+    let at = s.means + 3u * gi;
+    let ray = vec3<f32>(gaussians[at], gaussians[at + 1u], gaussians[at + 2u]);
+    var g_offset = vec3<f32>(0.0);
     for (var c = 0u; c < 3u; c++) {
-        let g_offset = gradient(g.means + 3u * gi + c) * u;
-        norm2 += g_offset * g_offset;
-        gaussians[s.means + 3u * gi + c] += adam_step(m.means + 3u * i + c, g_offset, 0u) * u;
+        g_offset[c] = gradient(g.means + 3u * gi + c) * u;
+        gaussians[at + c] += adam_step(m.means + 3u * i + c, g_offset[c], 0u) * u;
     }
-    let norm = sqrt(norm2);
+    let along = select(vec3<f32>(0.0), normalize(ray), dot(ray, ray) > 0.0);
+    let norm = length(g_offset - dot(g_offset, along) * along);
     stats[i] += norm;
     stats[ap.n_train + i] += select(0.0, 1.0, norm > 0.0);
 
