@@ -359,7 +359,12 @@ def evaluate_frames(
 # --- novel views -------------------------------------------------------------------------
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     """Peak signal-to-noise ratio in dB of two images in [0, 1]."""
-    mse = float(((a - b) ** 2).mean())
+    return psnr_of_mse(float(((a - b) ** 2).mean()))
+
+
+def psnr_of_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of values in [0, 1] (pooled over several images
+    when they are summed first)."""
     return 10 * math.log10(1.0 / max(mse, 1e-12))
 
 

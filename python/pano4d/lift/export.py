@@ -11,7 +11,6 @@ optimisation (``lift.diagnosis``: densify.jsonl, losses.json, loss.png).
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -37,7 +36,7 @@ from pano4d.lift.pipeline import (
     StaticSet,
     StepHook,
 )
-from pano4d.metrics import novel_view_metrics
+from pano4d.metrics import novel_view_metrics, psnr_of_mse
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 
@@ -204,7 +203,7 @@ def training_fit(inputs: LiftInputs, scene: ply4d.Scene4D) -> dict[str, Any]:
             rgb = inputs.render(g, cam).rgb.clamp(0, 1).cpu()
             squared += float(((rgb - target) ** 2).sum())
             count += target.numel()
-    fit = 10 * math.log10(1.0 / max(squared / max(count, 1), 1e-12))
+    fit = psnr_of_mse(squared / max(count, 1))
     working_w = int(frame0.shape[2])
     panorama = torch.from_numpy(read_image(inputs.cfg.panorama)).permute(2, 0, 1)
     input_w = int(panorama.shape[2])
@@ -214,12 +213,14 @@ def training_fit(inputs: LiftInputs, scene: ply4d.Scene4D) -> dict[str, Any]:
         still = (~inputs.moving).to(torch.float32)
         squared, count = 0.0, 0
         for cam in view_layout(len(inputs.cameras), inputs.cfg.lift.fov_deg, size):
-            keep = equirect_to_perspective(still, cam) > 0.999
-            error = equirect_to_perspective(frame0, cam) - equirect_to_perspective(panorama, cam)
+            # frame 0 and its still mask share the working size: one resampling.
+            working = equirect_to_perspective(torch.cat([frame0, still[None]]), cam)
+            keep = working[3] > 0.999
+            error = working[:3] - equirect_to_perspective(panorama, cam)
             squared += float((error**2 * keep).sum())
             count += 3 * int(keep.sum())
         if count:
-            resolution = 10 * math.log10(1.0 / max(squared / count, 1e-12))
+            resolution = psnr_of_mse(squared / count)
     return {
         "fit_psnr": fit,
         "resolution_psnr": resolution,

@@ -267,8 +267,9 @@ def split_and_prune(
     mean_grad = grad_accum / grad_count.clamp(min=1) * knobs.gradient_scale
     room = max(knobs.max_gaussians - int(keep.sum()), 0)
     candidates = keep & (mean_grad >= DENSIFY_GRADIENT)
+    n_candidates = int(candidates.sum())
     chosen = torch.zeros_like(keep)
-    count = min(room, int(candidates.sum()))
+    count = min(room, n_candidates)
     if count > 0:
         score = torch.where(candidates, mean_grad, torch.full_like(mean_grad, -1.0))
         chosen[torch.topk(score, count).indices] = True
@@ -311,10 +312,10 @@ def split_and_prune(
     stats = DensifyStats(
         step=step, before=len(g), pruned=int((~keep).sum()), split=int(split.sum()),
         cloned=int(clone.sum()), clipped=grown - len(merged), after=len(merged),
-        budget=knobs.max_gaussians, candidates=int(candidates.sum()),
+        budget=knobs.max_gaussians, candidates=n_candidates,
         seen=int((keep & (grad_count > 0)).sum()),
         threshold=float(mean_grad[chosen].min()) if chosen.any() else None,
-        limit="budget" if count < int(candidates.sum()) else "gradient",
+        limit="budget" if count < n_candidates else "gradient",
     )  # fmt: skip
     return Densified(merged, merged_units, source, child, stats)
 
