@@ -193,6 +193,35 @@ def test_densification_grows_where_the_gradient_is_and_stops_where_the_fit_is_do
         assert torch.equal(copy[0], copy[1])
 
 
+def test_split_children_are_drawn_from_the_parents_own_ellipsoid() -> None:
+    """A disc facing the origin (any direction) splits into children on its surface, spread
+    along its wide axes: the jitter is rotated by the Gaussian's quaternion."""
+    n = 64
+    directions = torch.randn(n, 3, generator=torch.Generator().manual_seed(1))
+    dirs = directions / directions.norm(dim=-1, keepdim=True)
+    pixel, wide = 1e-3, 0.05
+    g = Gaussians(
+        means=10.0 * dirs,
+        log_scales=torch.tensor([[wide, wide, 1e-3 * wide]]).log().expand(n, 3).clone(),
+        quats=facing_rotations(dirs.double()).float(),
+        opacity_logits=torch.zeros(n),
+        sh=torch.zeros(n, 1, 3),
+    )
+    count = torch.full((n,), 4.0)
+    knobs = Knobs(iterations=10, max_gaussians=10 * n, pixel_angle=pixel)
+    d = split_and_prune(
+        g, torch.full((n,), 10.0), 2 * DENSIFY_GRADIENT * count, count, knobs,
+        torch.Generator().manual_seed(0), 5,
+    )  # fmt: skip
+    assert d.stats.split == n
+    offsets = d.gaussians.means - g.means[d.source]
+    normal = (offsets * dirs[d.source]).sum(-1)
+    tangent = offsets - normal[:, None] * dirs[d.source]
+    assert float(normal.abs().max()) < 5 * 0.5 * 1e-3 * wide  # on the surface
+    spread = float(tangent.norm(dim=-1).pow(2).mean().sqrt())
+    assert spread == pytest.approx(0.5 * wide * math.sqrt(2), rel=0.25)  # both wide axes
+
+
 def test_densification_spends_the_budget_on_the_largest_gradients_first() -> None:
     sizes = [3 * SPLIT_PIXELS] * 4
     gradients = [g * DENSIFY_GRADIENT for g in (2.0, 8.0, 4.0, 1.5)]

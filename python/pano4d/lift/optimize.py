@@ -46,6 +46,7 @@ from pano4d.camera import Camera
 from pano4d.config import OptimisationKnobs
 from pano4d.gaussians import Gaussians
 from pano4d.lift.diagnosis import DensifyStats
+from pano4d.raster_torch import quat_to_rotation
 
 SSIM_WINDOW = 11
 SEM_SCHEDULE = ((0.54, 0.05), (0.66, 0.1), (0.90, 0.2))  # (fraction of iterations, α)
@@ -282,12 +283,14 @@ def split_and_prune(
     children = [torch.zeros(int(survivors.sum()), dtype=torch.bool, device=g.device)]
     if split.any():
         parent = g[split]
-        sigma = parent.log_scales.exp()
+        # Children are drawn from the parent's own ellipsoid (its axes rotated into the
+        # world): a disc's children stay on its surface and spread along its wide axes.
+        axes = quat_to_rotation(parent.quats) * parent.log_scales.exp()[:, None, :]
         for _ in range(2):
-            jitter = torch.randn(parent.means.shape, generator=generator)
+            jitter = torch.randn(parent.means.shape, generator=generator).to(g.device)
             parts.append(
                 Gaussians(
-                    parent.means + jitter.to(g.device) * sigma * 0.5,
+                    parent.means + 0.5 * (axes @ jitter[:, :, None])[:, :, 0],
                     parent.log_scales - math.log(SPLIT_FACTOR),
                     parent.quats,
                     parent.opacity_logits,
