@@ -11,6 +11,7 @@ from sphere_problem import sphere_problem
 from pano4d.gaussians import SH_C0, Gaussians
 from pano4d.lift.initial import (
     facing_rotations,
+    follow_frame_change,
     init_gaussians,
     init_sphere,
     points_in_mask,
@@ -59,6 +60,27 @@ def test_init_places_one_disc_per_sample_at_its_depth_with_its_colour() -> None:
     scales = g.log_scales.exp()
     assert torch.allclose(scales[low, 0], torch.tensor(0.7 * ico.spacing_rad * 5.0), rtol=1e-4)
     assert torch.all(scales[:, 2] < scales[:, 0])
+
+
+def test_a_later_timestamp_starts_with_the_colour_change_of_its_frame() -> None:
+    # Frame t − 1 → t: the lower half of the sphere brightens by (0.3, −0.2, 0.1), the upper
+    # half is bit-identical. Gaussians well inside each half (bilinear taps on one side).
+    ico = init_sphere(64, 2)
+    depth = torch.full((32, 64), 4.0)
+    before = torch.rand(32, 64, 3) * 0.5 + 0.25
+    g = init_gaussians(ico.points, ico.spacing_rad, depth, before, sh_degree=1)
+    g.sh[:, 1:] = torch.randn_like(g.sh[:, 1:])  # view-dependent part: not the frame's
+    after = before.clone()
+    shift = torch.tensor([0.3, -0.2, 0.1])
+    after[16:] += shift
+    moved = follow_frame_change(g, before, after)
+    low, high = ico.points[:, 2] < -0.2, ico.points[:, 2] > 0.2
+    gained = SH_C0 * (moved.sh[:, 0] - g.sh[:, 0])
+    assert torch.allclose(gained[low], shift.expand(int(low.sum()), 3), atol=1e-5)
+    assert torch.equal(moved.sh[high], g.sh[high])  # unchanged pixels: unchanged Gaussians
+    assert torch.equal(moved.sh[:, 1:], g.sh[:, 1:])
+    for name in ("means", "log_scales", "quats", "opacity_logits"):
+        assert torch.equal(getattr(moved, name), getattr(g, name))  # the fit's geometry
 
 
 def test_facing_rotation_turns_local_z_onto_the_direction() -> None:

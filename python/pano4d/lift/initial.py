@@ -4,16 +4,19 @@ One Gaussian per icosphere sample (near-uniform on the sphere, unlike equirect p
 crowd at the poles) at the aligned ray length along its direction, coloured from the frame,
 a flat disc facing the panorama's centre whose radius is the sample's footprint at that
 depth. A sample whose direction falls in the dilated moving mask belongs to the dynamic set;
-the rest form the static set, optimised once and shared by every timestamp.
+the rest form the static set, optimised once and shared by every timestamp. A later
+timestamp starts from the set the timestamp before it fitted, its colours moved by how much
+the frame changed where each Gaussian looks (``follow_frame_change``).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
-from pano4d.gaussians import Gaussians, rgb_to_sh_dc, sh_coeffs_for_degree
+from pano4d.gaussians import SH_C0, Gaussians, rgb_to_sh_dc, sh_coeffs_for_degree
 from pano4d.resample import equirect_sampler
 from pano4d.sphere import Icosphere, dir_to_equirect, icosphere, icosphere_frequency_for_spacing
 
@@ -90,3 +93,24 @@ def init_gaussians(
     sh = torch.zeros(len(points), sh_coeffs_for_degree(sh_degree), 3, device=device)
     sh[:, 0] = rgb_to_sh_dc(colour)
     return Gaussians(means, log_scales, quats, opacity.to(device), sh)
+
+
+def follow_frame_change(
+    gaussians: Gaussians, before: torch.Tensor, after: torch.Tensor
+) -> Gaussians:
+    """Where a later timestamp starts: the set fitted to frame ``before`` with each
+    Gaussian's base colour moved by how much the frame changed where it looks (``after`` −
+    ``before``, (H, W, 3) frames, sampled bilinearly at the Gaussian's direction as its
+    initial colour was); pixels that did not change leave their Gaussians as they are.
+
+    Why: the animated part of a panorama mostly changes colour in place (water, a screen,
+    drifting clouds) and Adam moves a colour by about its learning rate a step (0.3 % of the
+    range at lr_color = 10⁻²), so a timestamp that starts from the previous colours spends
+    its steps walking them to the new frame (bench/RESULTS.md, "how many steps a later
+    timestamp needs")."""
+    height, width = before.shape[:2]
+    look = equirect_sampler(gaussians.means.detach().cpu().to(torch.float64), width, height)
+    change = look.to(before.device).apply((after - before).permute(2, 0, 1).float()).T
+    sh = gaussians.sh.clone()
+    sh[:, 0] += (change / SH_C0).to(sh.device, sh.dtype)
+    return replace(gaussians, sh=sh)

@@ -12,8 +12,9 @@ after a kill skips what is done and resumes an optimisation from its last checkp
                         set by the moving region (``lift.initial``);
 5. ``fit_static``       the static set, optimised once on frame 0 with the moving region
                         masked out;
-6. ``fit_dynamic``      per timestamp, the dynamic set, warm-started from t − 1 and
-                        optimised against the frozen static set, in the views that see it;
+6. ``fit_dynamic``      per timestamp, the dynamic set, warm-started from t − 1 (its
+                        colours moved by the frame's change) and optimised against the
+                        frozen static set, in the views that see it;
 then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json, and
 each optimisation's ``TrainLog`` (``lift.diagnosis``: loss terms, densify-and-prune counts,
 kept in the stage checkpoints with the trainer) as densify.jsonl, losses.json and loss.png.
@@ -46,7 +47,12 @@ from pano4d.lift.convergence import StopRule
 from pano4d.lift.depth import make_depth_backend
 from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
-from pano4d.lift.initial import init_gaussians, init_sphere, points_in_mask
+from pano4d.lift.initial import (
+    follow_frame_change,
+    init_gaussians,
+    init_sphere,
+    points_in_mask,
+)
 from pano4d.lift.optimize import (
     FeatureModel,
     GaussianTrainer,
@@ -508,7 +514,10 @@ def fit_dynamic(
     with torch.no_grad():
         static_renders = [inputs.render(static, c) for c in cams] if windows else []
     for t in range(len(done), total):
-        dynamic = initial if t == 0 else done[-1]
+        dynamic = (
+            initial if t == 0
+            else follow_frame_change(done[-1], inputs.frames[t - 1], inputs.frames[t])
+        )  # fmt: skip
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
         if t > 0:
             with torch.no_grad():
