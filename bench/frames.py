@@ -11,14 +11,16 @@ scene's own world, PSNR over the pixels that see something moving. The lake (no 
 truth) is timed with the real animator.
 
 Variants: ``after`` is this tree; ``--base REV`` adds ``before``, REV's code in a git
-worktree under bench/out/frames/ (its own extension built there when REV's Rust differs),
-each case run by both, one after the other, in one run. Prints a table, writes
+worktree under bench/out/frames/ (its own extension built there when REV's Rust differs);
+each ``--setting NAME=JSON`` adds this tree with those knobs set (a point of a knob's
+speed/accuracy trade, e.g. ``later 0.2={"later_iteration_share": 0.2}``); each case is run
+by every variant, one after the other, in one run. Prints a table, writes
 bench/out/frames.json and bench/out/frames.png (moving-region PSNR against minutes of
-lifting, one curve per variant, a point per case).
+lifting, a colour per variant, a point per case, a case's points joined).
 
     .venv/bin/python bench/frames.py [--base REV] [--kinds landscape room] [--frames 2 7 14]
         [--width 2048] [--preset draft] [--lake] [--balanced-step 14]
-        [--overrides JSON] [--json bench/out/frames.json] [--keep]
+        [--overrides JSON] [--setting NAME=JSON ...] [--json bench/out/frames.json] [--keep]
 
 ``--balanced-step L``: balanced at 1024 wide with L frames and ``--balanced-iterations``
 steps per optimisation (the preset's step count would not fit this machine): the cost of a
@@ -28,6 +30,7 @@ step of each stage, from which a full run's time is estimated.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -109,8 +112,9 @@ def lake_scene(frames: int) -> Path:
 class Variant:
     """One version of the code: its package folder and extension."""
 
-    def __init__(self, name: str, python: Path) -> None:
-        self.name, self.python = name, python
+    def __init__(self, name: str, python: Path, overrides: dict[str, Any] | None = None) -> None:
+        # overrides: knobs this variant sets on top of the case's (``--setting``)
+        self.name, self.python, self.overrides = name, python, overrides or {}
 
     @classmethod
     def base(cls, rev: str) -> Variant:
@@ -140,6 +144,7 @@ class Variant:
 
     def train(self, case: dict[str, Any]) -> float:
         env = {**os.environ, "PANO4D_PYTHON": str(self.python), "PYTHONPATH": str(self.python)}
+        case = {**case, "overrides": {**case["overrides"], **self.overrides}}
         start = time.perf_counter()
         subprocess.run(
             [sys.executable, __file__, "--child", json.dumps(case)], env=env, check=True
@@ -270,7 +275,8 @@ def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any
 
 def plot(path: Path, rows: list[dict[str, Any]]) -> None:
     """Moving-region PSNR (mean over frames) against minutes of lifting (static + dynamic),
-    one colour per variant, a point per case."""
+    one colour per variant, a point per case; a case's points joined by a line in order of
+    minutes: the speed/accuracy trade of the variants (settings of a knob) on one scene."""
     import OpenImageIO as oiio
 
     from pano4d.images import write_image
@@ -286,7 +292,10 @@ def plot(path: Path, rows: list[dict[str, Any]]) -> None:
     xs, ys = [p[1] for p in points], [p[2] for p in points]
     x_hi = max(xs) * 1.1
     y_lo, y_hi = math.floor(min(ys)) - 1, math.ceil(max(ys)) + 1
-    colours = {"before": [1.0, 0.6, 0.3], "after": [0.4, 0.8, 1.0]}
+    palette = [[1.0, 0.6, 0.3], [0.4, 0.8, 1.0], [0.5, 0.9, 0.4], [0.9, 0.5, 0.9],
+               [1.0, 0.9, 0.3], [0.6, 0.6, 1.0]]  # fmt: skip
+    names = list(dict.fromkeys(p[0] for p in points))
+    colours = {name: palette[i % len(palette)] for i, name in enumerate(names)}
     grey = [0.6, 0.6, 0.6]
 
     def at(x: float, y: float) -> tuple[int, int]:
@@ -302,15 +311,20 @@ def plot(path: Path, rows: list[dict[str, Any]]) -> None:
         oiio.ImageBufAlgo.render_text(buf, px, h - m + 22, f"{x:.1f}", 14, "", grey)
     for y in range(y_lo, y_hi + 1, max(1, (y_hi - y_lo) // 5)):
         oiio.ImageBufAlgo.render_text(buf, 10, at(0, y)[1] + 5, f"{y}", 14, "", grey)
-    for variant, x, y, case in points:
+    for case in dict.fromkeys(p[3] for p in points):  # the case's name above its first point
+        line = sorted((x, y) for _, x, y, c in points if c == case)
+        for (x0, y0), (x1, y1) in itertools.pairwise(line):
+            oiio.ImageBufAlgo.render_line(buf, *at(x0, y0), *at(x1, y1), grey)
+        px, py = at(*line[0])
+        oiio.ImageBufAlgo.render_text(buf, px - 20, py - 12, case, 12, "", grey)
+    for variant, x, y, _ in points:
         px, py = at(x, y)
-        colour = colours.get(variant, grey)
+        colour = colours[variant]
         oiio.ImageBufAlgo.render_box(buf, px - 4, py - 4, px + 4, py + 4, colour, fill=True)
-        oiio.ImageBufAlgo.render_text(buf, px + 8, py - 6, case, 12, "", colour)
     legend = m
     for variant, colour in colours.items():
         oiio.ImageBufAlgo.render_text(buf, legend, h - 12, variant, 14, "", colour)
-        legend += 80
+        legend += 12 + 9 * len(variant)
     pixels = buf.get_pixels(oiio.FLOAT).reshape(h, w, 3)
     write_image(path, np.ascontiguousarray(pixels))
 
@@ -353,6 +367,8 @@ def main() -> None:
     parser.add_argument("--balanced-step", type=int, default=0, metavar="L")
     parser.add_argument("--balanced-iterations", type=int, default=100)
     parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
+    parser.add_argument("--setting", action="append", default=[], metavar="NAME=JSON",
+                        help="also run this tree with these knobs, as variant NAME")
     parser.add_argument("--json", type=Path, default=OUT / "frames.json")
     parser.add_argument("--keep", action="store_true",
                         help="measure finished runs again instead of retraining them")
@@ -362,14 +378,17 @@ def main() -> None:
         return
 
     variants = [Variant("after", REPO / "python")]
+    for setting in args.setting:
+        name, _, knobs = setting.partition("=")
+        variants.append(Variant(name, REPO / "python", json.loads(knobs)))
     if args.base:
         variants.insert(0, Variant.base(args.base))
     rows = []
     print(HEADER)
     for case in cases(args):
         for variant in variants:
-            slug = case["name"].replace(" ", "_").replace("(", "").replace(")", "")
-            run = {**case, "output": str(OUT / "frames" / "runs" / f"{slug}_{variant.name}")}
+            name = f"{case['name']} {variant.name}".replace("(", "").replace(")", "")
+            run = {**case, "output": str(OUT / "frames" / "runs" / "_".join(name.split()))}
             rows.append(measure(variant, run, args.keep))
             print_row(rows[-1])
     write_json(args, rows)
@@ -401,6 +420,7 @@ def write_json(args: argparse.Namespace, rows: list[dict[str, Any]]) -> None:
                     "torch": torch.__version__, "load": os.getloadavg()},
         "date": time.strftime("%Y-%m-%d"),
         "base": args.base,
+        "settings": args.setting,
         "rows": rows,
     })  # fmt: skip
 

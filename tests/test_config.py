@@ -225,6 +225,18 @@ def test_unknown_override_suggests_the_knob(scene_dir: Path) -> None:
     assert "'sh_degree' expects an integer, got 1.5" in message
 
 
+def test_a_knob_outside_its_bounds_is_named_with_them(scene_dir: Path) -> None:
+    knobs = "{later_iteration_share: 0, sh_degree: 4, gaussian_iterations: 0, lr_color: -0.1}"
+    message = load_error(scene_dir, MINIMAL + f"overrides: {knobs}\n")
+    assert "'later_iteration_share' expects a value > 0 and ≤ 1, got 0" in message
+    assert "'sh_degree' expects a value ≥ 0 and ≤ 3, got 4" in message
+    assert "'gaussian_iterations' expects a value ≥ 1, got 0" in message
+    assert "'lr_color' expects a value ≥ 0, got -0.1" in message
+    edges = "{later_iteration_share: 1, sh_degree: 0, gaussian_iterations: 1, lr_color: 0}"
+    cfg = load_config(write_yaml(scene_dir, MINIMAL + f"overrides: {edges}\n"))
+    assert cfg.resolved_preset().later_iteration_share == 1.0
+
+
 def test_resolved_preset_rejects_unknown_override_set_after_validation(scene_dir: Path) -> None:
     cfg = load_config(write_yaml(scene_dir, MINIMAL))
     bypassed = cfg.model_copy(update={"overrides": {"max_gausians": 5}})

@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import operator
 import os
 import types
 import typing
@@ -27,6 +28,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic.fields import FieldInfo
 
 from pano4d.errors import InputError
 from pano4d.fsutil import write_text_atomic
@@ -102,10 +104,10 @@ class OptimisationKnobs(BaseModel):
 
     # L = L_rgb + λ_temporal L_temporal + λ_geo L_geo + λ_sem L_sem,
     # L_rgb = (1 − λ_dssim) L1 + λ_dssim (1 − SSIM)
-    lambda_temporal: float = 0.0  # weight of L_temporal
-    lambda_geo: float = 0.0  # weight of L_geo
-    lambda_sem: float = 0.0  # weight of L_sem (with a feature backend)
-    lambda_dssim: float = 0.2  # the D-SSIM share of L_rgb (3DGS's)
+    lambda_temporal: float = Field(0.0, ge=0)  # weight of L_temporal
+    lambda_geo: float = Field(0.0, ge=0)  # weight of L_geo
+    lambda_sem: float = Field(0.0, ge=0)  # weight of L_sem (with a feature backend)
+    lambda_dssim: float = Field(0.2, ge=0, le=1)  # the D-SSIM share of L_rgb (3DGS's)
     densify: bool = False  # split or clone where the fit is not done, and prune, while training
     # End each warm-started dynamic set once its loss has converged (lift/convergence.py)
     # instead of always at the count; off in every preset until measured at balanced (at
@@ -114,12 +116,13 @@ class OptimisationKnobs(BaseModel):
     stop_when_converged: bool = False
     # Adam's learning rates; positions move as offsets in units of each Gaussian's initial
     # depth, so one rate fits a Gaussian at 2 m and one at 1000 m.
-    lr_position: float = 1e-3
-    lr_scale: float = 5e-3  # of the log-scales
-    lr_rotation: float = 1e-3  # of the quaternions
-    lr_opacity: float = 5e-2  # of the opacity logits
-    lr_color: float = 1e-2  # SH degree 0 (4× 3DGS: our runs are hundreds of steps); the
-    # higher degrees take lr_color / 20, as in 3DGS
+    lr_position: float = Field(1e-3, ge=0)
+    lr_scale: float = Field(5e-3, ge=0)  # of the log-scales
+    lr_rotation: float = Field(1e-3, ge=0)  # of the quaternions
+    lr_opacity: float = Field(5e-2, ge=0)  # of the opacity logits
+    # SH degree 0 (4× 3DGS: our runs are hundreds of steps); the higher degrees take
+    # lr_color / 20, as in 3DGS
+    lr_color: float = Field(1e-2, ge=0)
 
 
 class StageKnobs(BaseModel):
@@ -128,12 +131,16 @@ class StageKnobs(BaseModel):
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
-    view_size: int  # pixels per side of each perspective view
-    init_stride: int  # working-panorama pixels between initial Gaussians
-    align_iterations: int  # depth alignment (per-view scale + shift) steps
-    gaussian_iterations: int  # optimisation steps per timestamp
-    max_gaussians: int  # the budget: static plus one timestamp's dynamic set
-    sh_degree: int  # spherical-harmonics degree of the Gaussians' colour
+    view_size: int = Field(ge=16)  # pixels per side of each perspective view (a tile at least)
+    init_stride: int = Field(ge=1)  # working-panorama pixels between initial Gaussians
+    align_iterations: int = Field(ge=1)  # depth alignment (per-view scale + shift) steps
+    gaussian_iterations: int = Field(ge=1)  # optimisation steps per timestamp
+    # The share of gaussian_iterations each later timestamp runs: it starts from t − 1's set
+    # with the frame's colour change applied (lift/initial.follow_frame_change), so it needs
+    # fewer steps than t = 0; lower is faster and less exact (bench/RESULTS.md: "Frames").
+    later_iteration_share: float = Field(0.5, gt=0, le=1)
+    max_gaussians: int = Field(ge=1)  # the budget: static plus one timestamp's dynamic set
+    sh_degree: int = Field(ge=0, le=3)  # spherical-harmonics degree of the Gaussians' colour
     # A dynamic step renders only the window of each view that the dynamic set can reach,
     # with the static Gaussians that can draw into it (lift/windows.py: the same loss and
     # gradient as the whole view's); false renders whole views, to compare.
@@ -366,6 +373,8 @@ class SceneConfig(_Section):
             expected = knobs[key].annotation
             if type(value) is not expected and not (expected is float and type(value) is int):
                 problems.append(f"'{key}' expects {_TYPE_WORDS[expected]}, got {shown}")
+            elif bounds := _outside_bounds(knobs[key], value):
+                problems.append(f"'{key}' expects a value {bounds}, got {shown}")
         if problems:
             raise ValueError("; ".join(problems))
         return overrides
@@ -390,6 +399,19 @@ class SceneConfig(_Section):
 
 
 _TYPE_WORDS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
+# A knob's bounds (its Field's gt/ge/lt/le) in words, with the test each one makes.
+_BOUNDS = {"gt": (">", operator.gt), "ge": ("≥", operator.ge),
+           "lt": ("<", operator.lt), "le": ("≤", operator.le)}  # fmt: skip
+
+
+def _outside_bounds(field: FieldInfo, value: float) -> str | None:
+    """The field's bounds in words ("≥ 0 and ≤ 3") when ``value`` breaks one, else None."""
+    bounds = [(sign, holds, getattr(m, name)) for m in field.metadata
+              for name, (sign, holds) in _BOUNDS.items()
+              if getattr(m, name, None) is not None]  # fmt: skip
+    if all(holds(value, bound) for _, holds, bound in bounds):
+        return None
+    return " and ".join(f"{sign} {bound}" for sign, _, bound in bounds)
 
 
 # --- loading ----------------------------------------------------------------------------

@@ -466,10 +466,10 @@ class DynamicSets:
     logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
 
 
-def dynamic_iterations(full: int, t: int) -> int:
-    """At most this many steps for timestamp t: the full count first, half for the
-    warm-started later ones; the stop rule (``convergence``) may end either sooner."""
-    return full if t == 0 else max(1, full // 2)
+def dynamic_iterations(full: int, t: int, later_share: float) -> int:
+    """At most this many steps for timestamp t: the full count first, ``later_share`` of it
+    for the warm-started later ones; the stop rule (``convergence``) may end either sooner."""
+    return full if t == 0 else max(1, round(full * later_share))
 
 
 def fit_dynamic(
@@ -488,7 +488,9 @@ def fit_dynamic(
     total = len(inputs.frames)
     checkpoints.resumed("dynamic", t=len(done), step=0)
     cameras = inputs.cameras
-    seeing = [i for i, c in enumerate(cameras) if float(inputs.moving_in_view(c).max()) > 0]
+    # The moving region in each view, once: it is the same at every timestamp.
+    moving = [inputs.moving_in_view(c) for c in cameras]
+    seeing = [i for i, m in enumerate(moving) if float(m.max()) > 0]
     cams = [cameras[i] for i in seeing]
     if len(initial) == 0 or not cams:
         return DynamicSets([initial.detach() for _ in range(total)], 0.0, None, [])
@@ -525,10 +527,10 @@ def fit_dynamic(
                 views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
         context = static
         if windows:
-            reach = [reach_window(c, inputs.moving_in_view(c), dynamic) for c in cams]
+            reach = [reach_window(cameras[i], moving[i], dynamic) for i in seeing]
             views = windowed(views, reach, static_renders)
             context = static[touching(static, views.cameras)]
-        iterations = dynamic_iterations(full, t)
+        iterations = dynamic_iterations(full, t, inputs.knobs.later_iteration_share)
         stage = trainer_knobs(
             inputs.knobs, iterations, budget, median_depth, cams, inputs.frames.shape[2]
         )
