@@ -313,3 +313,19 @@ def test_the_template_names_every_knob() -> None:
     text = TEMPLATE_PATH.read_text(encoding="utf-8")
     missing = [name for name in PresetKnobs.model_fields if name not in text]
     assert not missing, f"templates/scene.yaml does not name the knobs {missing}"
+
+
+def test_a_dynamic_only_knob_keeps_the_stages_before_the_dynamic_one(scene_dir: Path) -> None:
+    """The checkpoints' keys (lift.checkpoints.stage_keys): later_iteration_share changes
+    only the dynamic stage's key, so a rerun with another share keeps the static set;
+    gaussian_iterations changes the static stage's and, chained, the dynamic one's."""
+    from pano4d.lift.checkpoints import stage_keys
+
+    def keys(overrides: str) -> dict[str, str]:
+        return stage_keys(load_config(write_yaml(scene_dir, MINIMAL + overrides)))
+
+    base = keys("")
+    share = keys("overrides: {later_iteration_share: 0.3}\n")
+    steps = keys("overrides: {gaussian_iterations: 50}\n")
+    assert [s for s in base if share[s] != base[s]] == ["dynamic"]
+    assert [s for s in base if steps[s] != base[s]] == ["static", "dynamic"]

@@ -39,12 +39,17 @@ def save_atomic(path: Path, payload: dict[str, Any]) -> None:
         torch.save(payload, tmp)
 
 
+# Knobs only the dynamic stage reads: changing one keeps the static set's checkpoint.
+DYNAMIC_ONLY_KNOBS = ("later_iteration_share",)
+
+
 def stage_keys(cfg: SceneConfig) -> dict[str, str]:
     """Per lifting stage, the hash of the settings its result depends on, chained: each key
     covers the stage's own settings and the key of the stage before it."""
     from pano4d.animate.pipeline import inputs_hash
 
     knobs = cfg.resolved_preset().model_dump()
+    later = {k: knobs.pop(k) for k in DYNAMIC_ONLY_KNOBS}
     own: dict[str, dict[str, Any]] = {
         # the frames (what the animating phase made of the panorama, regions and seed), the
         # view layout and the depth backend
@@ -61,7 +66,8 @@ def stage_keys(cfg: SceneConfig) -> dict[str, str]:
             "features": cfg.features.model_dump(mode="json"),
             "seed": cfg.seed,
         },
-        "dynamic": {},  # trained against the static set: everything static depends on
+        # trained against the static set: everything static depends on, and its own knobs
+        "dynamic": later,
     }
     keys: dict[str, str] = {}
     previous = ""
