@@ -34,7 +34,9 @@ struct RenderParams {
     // 1: add an overflow to the running counts the host checks now and then (a training
     // loop's frames); 0: the caller checks this frame itself (one-off renders).
     record_overflow: u32,
-    pad: u32,
+    // The Gaussians before this one are a frozen context: the backward gives them zero
+    // gradients without summing any (0 outside training sessions).
+    first_trained: u32,
 }
 
 const TILE_SIZE: u32 = 16u;

@@ -56,7 +56,7 @@ gpu_struct! {
         gaussian_stride: u32,
         log_scale_offset: f32,
         pub(crate) record_overflow: u32,
-        pad: u32,
+        first_trained: u32,
     }
 }
 
@@ -109,7 +109,7 @@ impl RenderParams {
             gaussian_stride: scene.stride,
             log_scale_offset: settings.splat_scale.ln(),
             record_overflow: 0,
-            pad: 0,
+            first_trained: scene.frozen,
         }
     }
 

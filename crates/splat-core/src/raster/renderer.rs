@@ -99,6 +99,7 @@ impl Renderer {
             len: n,
             stride: n,
             sh_coeffs: k,
+            frozen: 0,
         })
     }
 

@@ -492,6 +492,7 @@ impl TrainSession {
             len: self.n_context + self.trained.len,
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
+            frozen: self.n_context,
         }
     }
 

@@ -5,6 +5,10 @@
 // invocation per Gaussian adding the tile's totals into that Gaussian's ten sums in
 // `gaussian_grads` (zeroed by the host), which project_backward.wgsl carries to the 3D
 // parameters. Nothing is kept per intersection.
+// A frozen context (the Gaussians before `params.first_trained`: a dynamic step's static
+// set) gets no sums, and the walk stops at the tile's front-most trained Gaussian: what is
+// in front of it is frozen and nothing behind depends on it. So the context costs the
+// backward its blending arithmetic between the back and that Gaussian, not its sums.
 // After common.wgsl and two parts the host chooses by what the device has
 // (backward/mod.rs, `rasterize_backward_module`):
 // `sum_grads` (the tile sum): a compare-exchange loop on workgroup memory per pixel
@@ -32,6 +36,8 @@ var<workgroup> batch_gaussian: array<u32, 128>;
 var<workgroup> batch_grads: array<atomic<u32>, 1280>;
 var<workgroup> max_end: atomic<u32>;
 var<workgroup> max_end_snapshot: u32;
+var<workgroup> walk_start: atomic<u32>;
+var<workgroup> walk_start_snapshot: u32;
 
 // Float add on workgroup memory by compare-exchange on the u32 bits (WGSL has no portable
 // float atomics, and wgpu's f32 atomics are for storage buffers only).
@@ -83,6 +89,23 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     }
     let end = workgroupUniformLoad(&max_end_snapshot);
 
+    // The walk's front: the first intersection (in depth order) of a trained Gaussian.
+    if lid == 0u {
+        atomicStore(&walk_start, end);
+    }
+    workgroupBarrier();
+    for (var i = range.x + lid; i < end; i += 256u) {
+        if sorted_gaussians[i] >= params.first_trained {
+            atomicMin(&walk_start, i);
+            break;
+        }
+    }
+    workgroupBarrier();
+    if lid == 0u {
+        walk_start_snapshot = atomicLoad(&walk_start);
+    }
+    let start = workgroupUniformLoad(&walk_start_snapshot);
+
     var t = t_final;
     var behind_rgb = vec3<f32>(0.0);
     var behind_depth = 0.0;
@@ -91,8 +114,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     var last_depth = 0.0;
 
     var batch_end = end;
-    while batch_end > range.x {
-        let batch_start = max(range.x, select(0u, batch_end - BATCH, batch_end >= BATCH));
+    while batch_end > start {
+        let batch_start = max(start, select(0u, batch_end - BATCH, batch_end >= BATCH));
         let count = batch_end - batch_start;
         if lid < count {
             let gid = sorted_gaussians[batch_start + lid];
@@ -152,11 +175,15 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
                 last_rgb = rgb;
                 last_depth = xyoz.w;
             }
-            sum_grads(k * GRAD_STRIDE, contributes, grads);
+            // The same Gaussian for the whole workgroup, so every invocation or none sums.
+            if batch_gaussian[k] >= params.first_trained {
+                sum_grads(k * GRAD_STRIDE, contributes, grads);
+            }
         }
         workgroupBarrier();
         // The tile's totals, one global add per Gaussian and value (none for zeros: a
-        // Gaussian whose box touches the tile may reach none of its pixels).
+        // Gaussian whose box touches the tile may reach none of its pixels, and a frozen
+        // one has none).
         if lid < count {
             let dst = batch_gaussian[lid] * GRAD_STRIDE;
             for (var c = 0u; c < GRAD_STRIDE; c++) {
