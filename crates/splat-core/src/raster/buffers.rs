@@ -3,7 +3,7 @@
 
 use super::frame::STATUS_WORDS;
 use super::gpu_scene::binding_limit;
-use super::params::RenderParams;
+use super::params::{RenderParams, PIXEL_CHANNELS};
 use super::sort::{plan_buffer, SortPlan};
 use super::RasterError;
 
@@ -90,6 +90,8 @@ pub(super) struct Buffers {
     pub(super) ranges: GrowBuffer,
     pub(super) pixels: GrowBuffer,
     pub(super) pixel_state: GrowBuffer,
+    /// Bound as the frozen render of a frame that has none (the blending does not read it).
+    pub(super) no_frozen_render: wgpu::Buffer,
     pub(super) v_pixels: GrowBuffer,
     /// Each Gaussian's ten 2D gradient sums (rasterize_backward.wgsl).
     pub(super) gaussian_grads: GrowBuffer,
@@ -123,6 +125,12 @@ impl Buffers {
                 label: Some("render status"),
                 size: 4 * STATUS_WORDS as u64,
                 usage: wgpu::BufferUsages::STORAGE | copy,
+                mapped_at_creation: false,
+            }),
+            no_frozen_render: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("no frozen render"),
+                size: 4 * PIXEL_CHANNELS as u64,
+                usage: wgpu::BufferUsages::STORAGE,
                 mapped_at_creation: false,
             }),
             isect_keys: pair("intersection keys"),

@@ -37,6 +37,12 @@ struct RenderParams {
     // The Gaussians before this one are a frozen context: the backward gives them zero
     // gradients without summing any (0 outside training sessions).
     first_trained: u32,
+    // 1: the frozen context's own render of this camera is bound to the blending, which
+    // copies the tiles no trained Gaussian reaches from it (blend/rasterize.wgsl).
+    frozen_render: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 const TILE_SIZE: u32 = 16u;

@@ -57,6 +57,10 @@ gpu_struct! {
         log_scale_offset: f32,
         pub(crate) record_overflow: u32,
         first_trained: u32,
+        pub(crate) frozen_render: u32,
+        pad0: u32,
+        pad1: u32,
+        pad2: u32,
     }
 }
 
@@ -110,6 +114,10 @@ impl RenderParams {
             log_scale_offset: settings.splat_scale.ln(),
             record_overflow: 0,
             first_trained: scene.frozen,
+            frozen_render: 0,
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
         }
     }
 

@@ -117,13 +117,19 @@ impl Renderer {
     /// (see [`Self::frame_status`]); [`Self::check_intersections`] counts such frames and makes
     /// room. Chain [`Self::encode_backward`] on the returned frame before the next
     /// `encode_frame`.
+    ///
+    /// `frozen_render`: the render (H·W·5, [`Self::frame_pixels`]' layout) of the scene's
+    /// frozen prefix alone (`scene.frozen` Gaussians) from this camera with these settings,
+    /// where the caller keeps one: the tiles no trained Gaussian reaches are copied from it
+    /// instead of blended (the same pixels: the same Gaussians in the same order).
     pub fn encode_frame(
         &mut self,
         scene: SceneBuffer,
         camera: &Camera,
         settings: &RenderSettings,
+        frozen_render: Option<&wgpu::Buffer>,
     ) -> Result<Frame, RasterError> {
-        self.encode_frame_for(scene, camera, settings, true)
+        self.encode_frame_for(scene, camera, settings, true, frozen_render)
     }
 
     /// [`Self::encode_frame`]; `record`: whether an overflow counts in
@@ -134,12 +140,27 @@ impl Renderer {
         camera: &Camera,
         settings: &RenderSettings,
         record: bool,
+        frozen_render: Option<&wgpu::Buffer>,
     ) -> Result<Frame, RasterError> {
         validate_camera(camera)?;
         validate_settings(settings)?;
+        let pixel_bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
+        if let Some(buffer) = frozen_render {
+            if scene.frozen == 0 || buffer.size() < pixel_bytes {
+                return Err(RasterError::InvalidInput(format!(
+                    "a frozen render needs a frozen prefix and {pixel_bytes} bytes for a \
+                     {}x{} frame, got {} frozen Gaussians and {} bytes",
+                    camera.width,
+                    camera.height,
+                    scene.frozen,
+                    buffer.size()
+                )));
+            }
+        }
         let device = self.ctx.device.clone();
         let mut params = RenderParams::new(camera, settings, &scene);
         params.record_overflow = record as u32;
+        params.frozen_render = frozen_render.is_some() as u32;
         params.intersection_capacity = self.intersection_capacity;
         self.write_params(&params);
         let mut encoder = device.create_command_encoder(&Default::default());
@@ -154,7 +175,7 @@ impl Renderer {
             self.write_params(&params);
             encoder = device.create_command_encoder(&Default::default());
         }
-        let frame = self.encode_blend(&mut encoder, scene, params, depth_sorted);
+        let frame = self.encode_blend(&mut encoder, scene, params, depth_sorted, frozen_render);
         self.submit(encoder)?;
         Ok(frame)
     }
@@ -241,6 +262,7 @@ impl Renderer {
         scene: SceneBuffer,
         params: RenderParams,
         depth_sorted: usize,
+        frozen_render: Option<&wgpu::Buffer>,
     ) -> Frame {
         let device = self.ctx.device.clone();
         let b = &mut self.buffers;
@@ -311,6 +333,7 @@ impl Renderer {
                 ranges: &ranges,
                 pixels: &out_pixels,
                 pixel_state: &pixel_state,
+                frozen_pixels: frozen_render.unwrap_or(&b.no_frozen_render),
             };
             self.blend
                 .encode(&mut pass, &device, &blend, params.tiles());
@@ -475,7 +498,7 @@ impl Renderer {
     ) -> Result<(u32, Vec<u8>), RasterError> {
         // Twice at most: the second frame has room for the first one's intersections.
         for _ in 0..2 {
-            let frame = self.encode_frame_for(scene.clone(), camera, settings, false)?;
+            let frame = self.encode_frame_for(scene.clone(), camera, settings, false, None)?;
             let read = then(self, &frame)?;
             let (status, data) = self.read_status_and(read)?;
             let [_, _, count, drawn] = status;

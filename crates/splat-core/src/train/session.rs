@@ -88,6 +88,10 @@ struct View {
     weight: wgpu::Buffer,
     depth: Option<wgpu::Buffer>,
     previous: Option<wgpu::Buffer>,
+    /// The frozen context's own render of this view, made by the first
+    /// [`TrainSession::reserve_frames`] (the context and the camera do not change in a
+    /// session): the steps copy the tiles that no trained Gaussian reaches from it.
+    frozen_render: Option<wgpu::Buffer>,
 }
 
 /// Per-Gaussian buffers of the trained set, sized for its count.
@@ -298,6 +302,7 @@ impl TrainSession {
             weight: array("target weight", view.weight),
             depth: view.depth.map(|d| array("target depth", d)),
             previous: view.previous.map(|p| array("previous render", p)),
+            frozen_render: None,
         };
         self.views.push(view);
         Ok(())
@@ -532,14 +537,18 @@ impl TrainSession {
     /// encodes each view's forward and reads the largest count once (one wait). Call it
     /// where the loop waits anyway (at the start of a stage, after densification): steps
     /// do not wait for their counts, and a frame with more intersections than room draws
-    /// only the background (docs/rasterizer.md, "Frames without a wait").
+    /// only the background (docs/rasterizer.md, "Frames without a wait"). The first call
+    /// also renders the context alone from each view, which the steps then copy where no
+    /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
         for index in 0..self.views.len() {
             let camera = self.views[index].camera;
-            renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+            renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings, None)?;
         }
         self.extra_frame = None;
-        self.check_frames(renderer).map(|_| ())
+        self.check_frames(renderer)?;
+        // With room for the whole scene's frames, the context's own ones fit too.
+        self.render_frozen(renderer)
     }
 
     /// The renderer's check of the frames since the last one (16 bytes read back): how
@@ -570,13 +579,45 @@ impl TrainSession {
         renderer: &mut Renderer,
         view: usize,
     ) -> Result<(), RasterError> {
-        let camera = self.view(view)?.camera;
-        let frame = renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings)?;
+        let v = self.view(view)?;
+        let (camera, frozen_render) = (v.camera, v.frozen_render.clone());
+        let frame = renderer.encode_frame(
+            self.scene_buffer(),
+            &camera,
+            &self.config.settings,
+            frozen_render.as_ref(),
+        )?;
         self.frame_pixels = camera.width * camera.height;
         self.encode_losses(view, renderer.frame_pixels())?;
         renderer.encode_backward(&frame, &self.loss_buffers.v_pixels, &self.grads)?;
         self.extra_frame = None;
         self.has_extra = false;
+        Ok(())
+    }
+
+    /// Renders the context alone from every view that has no such render yet, and keeps
+    /// it (the context and the views do not change in a session).
+    fn render_frozen(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        if self.n_context == 0 {
+            return Ok(());
+        }
+        let context = SceneBuffer {
+            len: self.n_context,
+            ..self.scene_buffer()
+        };
+        for index in 0..self.views.len() {
+            if self.views[index].frozen_render.is_some() {
+                continue;
+            }
+            let camera = self.views[index].camera;
+            renderer.encode_frame(context.clone(), &camera, &self.config.settings, None)?;
+            let floats = PIXEL_CHANNELS as u64 * (camera.width * camera.height) as u64;
+            let kept = storage(&self.device, "frozen render", floats);
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            encoder.copy_buffer_to_buffer(renderer.frame_pixels(), 0, &kept, 0, 4 * floats);
+            self.submit(encoder)?;
+            self.views[index].frozen_render = Some(kept);
+        }
         Ok(())
     }
 
@@ -618,7 +659,8 @@ impl TrainSession {
                 self.max_pixels, camera.width, camera.height
             )));
         }
-        let frame = renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings)?;
+        let frame =
+            renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings, None)?;
         self.frame_pixels = camera.width * camera.height;
         self.extra_frame = Some(frame);
         self.read_render(renderer)

@@ -451,3 +451,60 @@ fn reserved_frames_do_not_overflow_and_checks_count_overflows() {
         "view 1's steps had gradients"
     );
 }
+
+#[test]
+fn a_step_over_the_contexts_own_render_draws_what_the_renderer_draws() {
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let side = 64;
+    let context = cloud(300, 11);
+    // Four small trained Gaussians at one side of the view: most tiles hold the context
+    // alone, and the steps copy them from the context's render (made by reserve_frames).
+    let mut trained = cloud(4, 12);
+    for (mean, scale) in trained.means.iter_mut().zip(&mut trained.log_scales) {
+        mean[1] = -1.2 + 0.2 * mean[1];
+        *scale = scale.map(|s| s - 1.0);
+    }
+    let t = targets(side);
+    let mut s = session(&renderer, &context, &trained, &t, side);
+    s.reserve_frames(&mut renderer).expect("reserve");
+    let n = trained.len();
+    for step in 0..3 {
+        // The whole scene as it stands: the context's sections, each followed by the
+        // trained set's.
+        let params = s.state().expect("state").params;
+        let now = [
+            &params[..3 * n],
+            &params[3 * n..6 * n],
+            &params[6 * n..10 * n],
+            &params[10 * n..11 * n],
+            &params[11 * n..],
+        ];
+        let sections: Vec<Vec<f32>> = SceneInput::from(&context)
+            .sections()
+            .iter()
+            .zip(now)
+            .map(|(c, t)| [*c, t].concat())
+            .collect();
+        let scene = SceneInput {
+            means: &sections[0],
+            log_scales: &sections[1],
+            quats: &sections[2],
+            opacity_logits: &sections[3],
+            sh: &sections[4],
+        };
+        // Other pixels in the renderer's frame buffer first (the trained set alone), so
+        // that a copy that missed a value would leave those.
+        renderer
+            .forward(&SceneInput::from(&trained), &camera(side), &config().settings)
+            .expect("forward");
+        s.step(&mut renderer, 0).expect("step");
+        let got = s.read_render(&renderer).expect("render");
+        let (want, _) = renderer
+            .forward(&scene, &camera(side), &config().settings)
+            .expect("forward");
+        assert!(
+            got == want,
+            "step {step}: the frame differs from the renderer's"
+        );
+    }
+}

@@ -90,21 +90,24 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     let end = workgroupUniformLoad(&max_end_snapshot);
 
     // The walk's front: the first intersection (in depth order) of a trained Gaussian.
-    if lid == 0u {
-        atomicStore(&walk_start, end);
-    }
-    workgroupBarrier();
-    for (var i = range.x + lid; i < end; i += 256u) {
-        if sorted_gaussians[i] >= params.first_trained {
-            atomicMin(&walk_start, i);
-            break;
+    var start = range.x;
+    if params.first_trained > 0u {
+        if lid == 0u {
+            atomicStore(&walk_start, end);
         }
+        workgroupBarrier();
+        for (var i = range.x + lid; i < end; i += 256u) {
+            if sorted_gaussians[i] >= params.first_trained {
+                atomicMin(&walk_start, i);
+                break;
+            }
+        }
+        workgroupBarrier();
+        if lid == 0u {
+            walk_start_snapshot = atomicLoad(&walk_start);
+        }
+        start = workgroupUniformLoad(&walk_start_snapshot);
     }
-    workgroupBarrier();
-    if lid == 0u {
-        walk_start_snapshot = atomicLoad(&walk_start);
-    }
-    let start = workgroupUniformLoad(&walk_start_snapshot);
 
     var t = t_final;
     var behind_rgb = vec3<f32>(0.0);

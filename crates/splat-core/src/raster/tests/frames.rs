@@ -4,7 +4,7 @@
 
 use super::super::gpu::grid;
 use super::super::sort::sort_plans;
-use super::super::{DeviceOptions, STATUS_DRAWN};
+use super::super::{DeviceOptions, SceneBuffer, STATUS_DRAWN, TILE_SIZE};
 use super::*;
 
 fn renderer_with_limit(limit: Option<u64>) -> Renderer {
@@ -67,7 +67,7 @@ fn a_frame_that_overflows_draws_nothing_and_is_counted_until_there_is_room() {
     // The first frame sizes the intersection buffers for the small scene.
     let scene = renderer.upload(&SceneInput::from(&small)).expect("upload");
     renderer
-        .encode_frame(scene, &cam, &settings())
+        .encode_frame(scene, &cam, &settings(), None)
         .expect("frame");
     let capacity = renderer.intersection_capacity();
     assert!(
@@ -78,7 +78,7 @@ fn a_frame_that_overflows_draws_nothing_and_is_counted_until_there_is_room() {
     // device and is counted; its backward gives zero gradients.
     let scene = renderer.upload(&SceneInput::from(&large)).expect("upload");
     let frame = renderer
-        .encode_frame(scene, &cam, &settings())
+        .encode_frame(scene, &cam, &settings(), None)
         .expect("frame");
     let status = read(&renderer.ctx, renderer.frame_status(), 4);
     assert_eq!((status[2], status[STATUS_DRAWN]), (count, 0));
@@ -98,7 +98,7 @@ fn a_frame_that_overflows_draws_nothing_and_is_counted_until_there_is_room() {
     assert!(check.capacity >= count + count / 4, "{check:?}");
     let scene = renderer.upload(&SceneInput::from(&large)).expect("upload");
     renderer
-        .encode_frame(scene, &cam, &settings())
+        .encode_frame(scene, &cam, &settings(), None)
         .expect("frame");
     assert_eq!(
         read(&renderer.ctx, renderer.frame_status(), 4)[STATUS_DRAWN],
@@ -127,7 +127,7 @@ fn the_gpu_sizes_the_tile_sort_as_the_host_would() {
         }
         let scene = renderer.upload(&SceneInput::from(&set)).expect("upload");
         renderer
-            .encode_frame(scene, &cam, &settings())
+            .encode_frame(scene, &cam, &settings(), None)
             .expect("frame");
         let m = read(&renderer.ctx, renderer.frame_status(), 4)[2];
         let (sort, scan) = sort_plans(m);
@@ -203,7 +203,7 @@ fn the_device_side_calls_give_what_the_waiting_calls_give() {
         .expect("backward");
     let scene = renderer.upload(&input).expect("upload");
     let frame = renderer
-        .encode_frame(scene, &cam, &settings())
+        .encode_frame(scene, &cam, &settings(), None)
         .expect("frame");
     assert_eq!(frame.size(), (w, h));
     assert_eq!(frame.num_gaussians(), 200);
@@ -317,4 +317,83 @@ fn intersections_just_under_the_binding_limit_render() {
             other => panic!("expected the intersection limit, got {other:?}"),
         }
     }
+}
+
+#[test]
+fn a_frame_over_a_frozen_render_copies_the_tiles_of_the_context_alone() {
+    let mut renderer = renderer_with_limit(None);
+    renderer.reserve_intersections(50_000).expect("room");
+    let (w, h) = (96u32, 64u32);
+    let cam = camera(w, h);
+    let len = 5 * (w * h) as usize;
+    // A context over the whole view and three trained Gaussians: most tiles hold the
+    // context alone.
+    let mut scene_set = random_set(400, 61);
+    let n_context = scene_set.len() as u32;
+    scene_set.extend_from(&random_set(3, 62));
+    let scene = SceneBuffer {
+        frozen: n_context,
+        ..renderer
+            .upload(&SceneInput::from(&scene_set))
+            .expect("upload")
+    };
+    let context = SceneBuffer {
+        len: n_context,
+        ..scene.clone()
+    };
+    renderer
+        .encode_frame(context, &cam, &settings(), None)
+        .expect("context frame");
+    let context_pixels = read_floats(&renderer, renderer.frame_pixels(), len);
+    let frame = renderer
+        .encode_frame(scene.clone(), &cam, &settings(), None)
+        .expect("blended frame");
+    let blended = read_floats(&renderer, renderer.frame_pixels(), len);
+    let ones = floats(&renderer, &vec![1.0; len]);
+    let n_all = scene_set.len();
+    let grads = floats(&renderer, &vec![f32::NAN; 23 * n_all]);
+    renderer
+        .encode_backward(&frame, &ones, &grads)
+        .expect("backward");
+    let want_grads = read_floats(&renderer, &grads, 23 * n_all);
+
+    // Over the context's true render the frame is the blended one, bit for bit, and so
+    // are its gradients (up to the atomics' order).
+    let frozen = floats(&renderer, &context_pixels);
+    let frame = renderer
+        .encode_frame(scene.clone(), &cam, &settings(), Some(&frozen))
+        .expect("frame over the frozen render");
+    assert!(read_floats(&renderer, renderer.frame_pixels(), len) == blended);
+    renderer
+        .encode_backward(&frame, &ones, &grads)
+        .expect("backward");
+    assert_same_up_to_tile_order(&read_floats(&renderer, &grads, 23 * n_all), &want_grads);
+
+    // Over a marked render (every value + 1) the marks show which tiles were copied: those
+    // where the context alone draws, and both kinds of tile occur.
+    let marked: Vec<f32> = context_pixels.iter().map(|v| v + 1.0).collect();
+    let marked = floats(&renderer, &marked);
+    renderer
+        .encode_frame(scene, &cam, &settings(), Some(&marked))
+        .expect("frame over a marked render");
+    let got = read_floats(&renderer, renderer.frame_pixels(), len);
+    let tiles_x = w.div_ceil(TILE_SIZE);
+    let mut copied = vec![None; (tiles_x * h.div_ceil(TILE_SIZE)) as usize];
+    for (i, (px, (want, context))) in got
+        .chunks(5)
+        .zip(blended.chunks(5).zip(context_pixels.chunks(5)))
+        .enumerate()
+    {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let is_copy = px.iter().zip(context).all(|(a, b)| *a == b + 1.0);
+        assert!(is_copy || px == want, "pixel ({x}, {y})");
+        let tile = &mut copied[(y / TILE_SIZE * tiles_x + x / TILE_SIZE) as usize];
+        assert_eq!(*tile.get_or_insert(is_copy), is_copy, "one tile, one way");
+    }
+    let count = copied.iter().filter(|c| **c == Some(true)).count();
+    assert!(
+        count > 0 && count < copied.len(),
+        "{count} of {} tiles copied",
+        copied.len()
+    );
 }

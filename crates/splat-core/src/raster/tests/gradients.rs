@@ -134,7 +134,7 @@ fn every_path_adds_each_tiles_total_to_its_gaussian() {
     for (label, mut renderer) in path_renderers() {
         let scene = renderer.upload(&SceneInput::from(&set)).expect("upload");
         let frame = renderer
-            .encode_frame(scene, &cam, &settings)
+            .encode_frame(scene, &cam, &settings, None)
             .expect("frame");
         let mut sums = gaussian_sums(&mut renderer, &frame, &v_pixels);
         let whole = sums.pop().expect("the whole backward");
