@@ -315,17 +315,23 @@ def test_the_template_names_every_knob() -> None:
     assert not missing, f"templates/scene.yaml does not name the knobs {missing}"
 
 
-def test_a_dynamic_only_knob_keeps_the_stages_before_the_dynamic_one(scene_dir: Path) -> None:
-    """The checkpoints' keys (lift.checkpoints.stage_keys): later_iteration_share changes
-    only the dynamic stage's key, so a rerun with another share keeps the static set;
-    gaussian_iterations changes the static stage's and, chained, the dynamic one's."""
+@pytest.mark.parametrize(
+    "override",
+    ["later_iteration_share: 0.3", "stop_when_converged: true", "dynamic_windows: false"],
+)
+def test_a_dynamic_only_knob_keeps_the_stages_before_the_dynamic_one(
+    scene_dir: Path, override: str
+) -> None:
+    """The checkpoints' keys (lift.checkpoints.stage_keys): a knob only the dynamic stage
+    reads changes only that stage's key, so a rerun with another value keeps the static
+    set; gaussian_iterations changes the static stage's and, chained, the dynamic one's."""
     from pano4d.lift.checkpoints import stage_keys
 
     def keys(overrides: str) -> dict[str, str]:
         return stage_keys(load_config(write_yaml(scene_dir, MINIMAL + overrides)))
 
     base = keys("")
-    share = keys("overrides: {later_iteration_share: 0.3}\n")
+    changed = keys(f"overrides: {{{override}}}\n")
     steps = keys("overrides: {gaussian_iterations: 50}\n")
-    assert [s for s in base if share[s] != base[s]] == ["dynamic"]
+    assert [s for s in base if changed[s] != base[s]] == ["dynamic"]
     assert [s for s in base if steps[s] != base[s]] == ["static", "dynamic"]

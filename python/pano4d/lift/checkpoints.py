@@ -40,7 +40,7 @@ def save_atomic(path: Path, payload: dict[str, Any]) -> None:
 
 
 # Knobs only the dynamic stage reads: changing one keeps the static set's checkpoint.
-DYNAMIC_ONLY_KNOBS = ("later_iteration_share",)
+DYNAMIC_ONLY_KNOBS = ("later_iteration_share", "stop_when_converged", "dynamic_windows")
 
 
 def stage_keys(cfg: SceneConfig) -> dict[str, str]:

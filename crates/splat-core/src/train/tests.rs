@@ -495,7 +495,11 @@ fn a_step_over_the_contexts_own_render_draws_what_the_renderer_draws() {
         // Other pixels in the renderer's frame buffer first (the trained set alone), so
         // that a copy that missed a value would leave those.
         renderer
-            .forward(&SceneInput::from(&trained), &camera(side), &config().settings)
+            .forward(
+                &SceneInput::from(&trained),
+                &camera(side),
+                &config().settings,
+            )
             .expect("forward");
         s.step(&mut renderer, 0).expect("step");
         let got = s.read_render(&renderer).expect("render");
