@@ -126,6 +126,18 @@ fn session(
     .expect("session")
 }
 
+/// `n` Gaussians packed as [`TrainSession::state`]'s params (SoA sections of `n`) seen as
+/// the sections they are.
+fn unpacked(params: &[f32], n: usize) -> SceneInput<'_> {
+    SceneInput {
+        means: &params[..3 * n],
+        log_scales: &params[3 * n..6 * n],
+        quats: &params[6 * n..10 * n],
+        opacity_logits: &params[10 * n..11 * n],
+        sh: &params[11 * n..],
+    }
+}
+
 /// `trained` with zero moments and statistics, before its first step.
 fn fresh<'a>(trained: &'a GaussianSet, unit: &'a [f32]) -> TrainedInput<'a> {
     TrainedInput {
@@ -281,13 +293,7 @@ fn state_round_trips_and_steps_read_nothing_back() {
     assert!(state.grad_count.contains(&5.0));
     // Write it back and read it again: identical.
     let input = TrainedInput {
-        gaussians: SceneInput {
-            means: &state.params[..180],
-            log_scales: &state.params[180..360],
-            quats: &state.params[360..600],
-            opacity_logits: &state.params[600..660],
-            sh: &state.params[660..],
-        },
+        gaussians: unpacked(&state.params, trained.len()),
         unit: &state.unit,
         exp_avg: Some(&state.exp_avg),
         exp_avg_sq: Some(&state.exp_avg_sq),
@@ -472,17 +478,11 @@ fn a_step_over_the_contexts_own_render_draws_what_the_renderer_draws() {
         // The whole scene as it stands: the context's sections, each followed by the
         // trained set's.
         let params = s.state().expect("state").params;
-        let now = [
-            &params[..3 * n],
-            &params[3 * n..6 * n],
-            &params[6 * n..10 * n],
-            &params[10 * n..11 * n],
-            &params[11 * n..],
-        ];
+        let now = unpacked(&params, n);
         let sections: Vec<Vec<f32>> = SceneInput::from(&context)
             .sections()
             .iter()
-            .zip(now)
+            .zip(now.sections())
             .map(|(c, t)| [*c, t].concat())
             .collect();
         let scene = SceneInput {
