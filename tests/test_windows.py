@@ -7,6 +7,7 @@ are what the scene needs."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -18,6 +19,7 @@ from pano4d.lift.resident import ResidentTrainer
 from pano4d.lift.windows import (
     SSIM_MARGIN,
     ViewWindow,
+    previous_in_windows,
     reach_window,
     touching,
     windowed,
@@ -72,6 +74,23 @@ def test_the_window_and_the_static_set_follow_the_dynamic_set(scene: dict) -> No
     camera = scene["windows"].cameras[0]
     dropped = static[~touching(static, [camera])]
     assert float(render(dropped, camera).alpha.max()) == 0.0
+
+
+def test_the_previous_frame_renders_only_its_window(scene: dict) -> None:
+    """t − 1's frame (L_temporal's target) from the window alone pasted into the static render
+    is the whole view's render of the static set and t − 1's set (here the dynamic set with
+    other colours: a later timestamp starts from t − 1's geometry)."""
+    camera, static, window = scene["camera"], scene["static"], scene["window"]
+    dynamic: Gaussians = scene["dynamic"]
+    gen = torch.Generator().manual_seed(4)
+    previous = replace(dynamic, sh=torch.randn(dynamic.sh.shape, generator=gen))
+    whole = render(Gaussians.cat([static, previous]), camera).rgb
+    pasted = previous_in_windows(
+        render, [window], [camera], [render(static, camera)], scene["context"], previous
+    )[0]
+    assert window.share(camera) < 0.7
+    assert float((whole - render(static, camera).rgb).abs().max()) > 0.1  # previous shows
+    assert torch.allclose(pasted, whole, rtol=0, atol=1e-5)
 
 
 def trainer(kind: str, views: TrainViews, context: Gaussians, dynamic: Gaussians) -> Trainer:

@@ -62,7 +62,7 @@ from pano4d.lift.optimize import (
     TrainViews,
 )
 from pano4d.lift.resident import ResidentTrainer
-from pano4d.lift.windows import reach_window, touching, windowed
+from pano4d.lift.windows import previous_in_windows, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
@@ -521,15 +521,26 @@ def fit_dynamic(
             else follow_frame_change(done[-1], inputs.frames[t - 1], inputs.frames[t])
         )  # fmt: skip
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
-        if t > 0:
-            with torch.no_grad():
-                scene = Gaussians.cat([static, done[-1]])
-                views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
-        context = static
+        previous = done[-1] if t > 0 else None
+        context, reach = static, None
         if windows:
-            reach = [reach_window(cameras[i], moving[i], dynamic) for i in seeing]
+            # The window holds t − 1's set too, so that outside it t − 1's render (L_temporal's
+            # target) is the static render.
+            drawn = dynamic if previous is None else Gaussians.cat([dynamic, previous])
+            reach = [reach_window(cameras[i], moving[i], drawn) for i in seeing]
+            window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
+            context = static[touching(static, window_cameras)]
+        if previous is not None:  # L_temporal's target: t − 1's render of the views
+            with torch.no_grad():
+                views.previous = (
+                    torch.stack([inputs.render(Gaussians.cat([static, previous]), c).rgb
+                                 for c in cams])
+                    if reach is None
+                    else previous_in_windows(inputs.render, reach, cams, static_renders,
+                                             context, previous)
+                )  # fmt: skip
+        if reach is not None:
             views = windowed(views, reach, static_renders)
-            context = static[touching(static, views.cameras)]
         iterations = dynamic_iterations(full, t, inputs.knobs.later_iteration_share)
         stage = trainer_knobs(
             inputs.knobs, iterations, budget, median_depth, cams, inputs.frames.shape[2]

@@ -27,6 +27,7 @@ Why that is exact (tests/test_windows.py checks one step against the whole view)
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -142,6 +143,28 @@ def reach_window(camera: Camera, moving: torch.Tensor, dynamic: Gaussians) -> Vi
     start = [max(0, math.floor(lo[i]) - grow) for i in (0, 1)]
     end = [min(size[i], math.ceil(hi[i]) + grow) for i in (0, 1)]
     return ViewWindow(start[0], start[1], end[0] - start[0], end[1] - start[1])
+
+
+def previous_in_windows(
+    render: Callable[[Gaussians, Camera], RenderOutput],
+    windows: list[ViewWindow],
+    cameras: list[Camera],
+    static: list[RenderOutput],
+    context: Gaussians,
+    previous: Gaussians,
+) -> torch.Tensor:
+    """(V, H, W, 3): the render of the static set and t − 1's dynamic set ``previous`` in
+    each view (L_temporal's target), for ``windows`` that hold ``previous``'s footprints:
+    each window is rendered from the ``context`` that can draw into it and ``previous``,
+    and pasted into the static set's render of its view (``static``), which is the
+    whole render outside the window since ``previous`` draws nothing there."""
+    seen = Gaussians.cat([context, previous])
+    out = []
+    for window, camera, whole in zip(windows, cameras, static, strict=True):
+        image = whole.rgb.clone()
+        window.crop(image)[...] = render(seen, window.camera(camera)).rgb
+        out.append(image)
+    return torch.stack(out)
 
 
 def outside_sums(
