@@ -27,7 +27,8 @@ const SSIM_SIGMA: f32 = 1.5;
 const MOMENT_FLOATS: u64 = 20;
 const COEFF_FLOATS: u64 = 12;
 const PARTIALS: u64 = 8;
-/// Pixels per invocation of the summing passes (losses.wgsl).
+/// Pixels per invocation of the window and summing passes: a run along a row or a column
+/// (losses.wgsl, `Run`).
 const PIXELS_PER_INVOCATION: u32 = 8;
 const TOTALS: u64 = 16;
 /// Floats of the loss read-back: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered weight,
@@ -143,8 +144,11 @@ impl LossParams {
 /// the host computes them once (python/pano4d/lift/windows.py).
 pub const OUTSIDE_SUMS: usize = 9;
 
-/// A view's targets on the device (`depth` and `previous` are a placeholder when absent).
+/// A view's size and targets on the device (`depth` and `previous` are a placeholder when
+/// absent).
 pub(super) struct ViewBuffers<'a> {
+    pub width: u32,
+    pub height: u32,
     pub params: &'a wgpu::Buffer,
     pub rgb: &'a wgpu::Buffer,
     pub weight: &'a wgpu::Buffer,
@@ -170,7 +174,6 @@ fn storage(
 /// The scratch buffers of the loss passes for views of one size, and their outputs:
 /// the pixel gradient (`v_pixels`, the forward's layout) and the loss parts (`loss`).
 pub(super) struct LossBuffers {
-    pixels: u32,
     /// The row-filtered moments, later the column adjoints (never both alive).
     moments: wgpu::Buffer,
     coeffs: wgpu::Buffer,
@@ -185,7 +188,6 @@ impl LossBuffers {
         let p = pixels as u64;
         let none = wgpu::BufferUsages::empty();
         Self {
-            pixels,
             moments: storage(device, "ssim moments", MOMENT_FLOATS * p, none),
             coeffs: storage(device, "ssim coefficients", COEFF_FLOATS * p, none),
             partials: storage(
@@ -260,8 +262,11 @@ impl LossKernels {
         view: &ViewBuffers<'_>,
         pixels: &wgpu::Buffer,
     ) {
-        let groups = div_ceil(b.pixels, 256);
-        let summing = div_ceil(b.pixels, 256 * PIXELS_PER_INVOCATION);
+        // One invocation per run of a row (`rows`) or a column (`columns`, also the summing
+        // passes' workgroups: totals_a and totals_b sum as many partials).
+        let (w, h) = (view.width, view.height);
+        let rows = div_ceil(h * div_ceil(w, PIXELS_PER_INVOCATION), 256);
+        let columns = div_ceil(w * div_ceil(h, PIXELS_PER_INVOCATION), 256);
         // The shader's bindings by number (8, the column adjoints, reuses the moments'
         // buffer) and, per pass, the ones its entry point uses.
         let buffers: [&wgpu::Buffer; 13] = [
@@ -280,13 +285,13 @@ impl LossKernels {
             &b.loss,
         ];
         let passes: [(&wgpu::ComputePipeline, &[u32], u32); 8] = [
-            (&self.ssim_rows, &[0, 1, 2, 3, 6], groups),
-            (&self.ssim_columns, &[0, 1, 2, 3, 4, 5, 6, 7, 9], summing),
+            (&self.ssim_rows, &[0, 1, 2, 3, 6], rows),
+            (&self.ssim_columns, &[0, 1, 2, 3, 4, 5, 6, 7, 9], columns),
             (&self.totals_a, &[0, 9, 10], 1),
-            (&self.pearson_terms, &[0, 1, 3, 4, 9, 10], summing),
+            (&self.pearson_terms, &[0, 1, 3, 4, 9, 10], columns),
             (&self.totals_b, &[0, 9, 10], 1),
-            (&self.adjoint_columns, &[0, 7, 8], groups),
-            (&self.pixel_grads, &[0, 1, 2, 3, 4, 5, 7, 8, 10, 11], groups),
+            (&self.adjoint_columns, &[0, 7, 8], columns),
+            (&self.pixel_grads, &[0, 1, 2, 3, 4, 5, 7, 8, 10, 11], rows),
             (&self.loss_value, &[0, 10, 12], 1),
         ];
         let mut pass = encoder.begin_compute_pass(&Default::default());

@@ -125,6 +125,39 @@ fn reflect(i: i32, n: i32) -> u32 {
     return u32(j);
 }
 
+// PIXELS_PER_INVOCATION consecutive pixels of a row or a column: each invocation of the
+// window passes takes one, so that it reads each pixel its windows need once (count + 2r
+// reads, not count·(2r + 1): on a CPU adapter the passes' time is their reads) and adds a
+// window's taps in the order of its pixels, as one window at a time would.
+struct Run {
+    // The pixel index of the row's (column's) item 0; items are 1 (width) pixels apart.
+    start: u32,
+    // The run's first item and its number of items (0: this invocation has no run).
+    first: i32,
+    count: i32,
+}
+
+// Run `index` of the rows, each row split into runs from its left.
+fn row_run(index: u32) -> Run {
+    let per_row = (lp.width + PIXELS_PER_INVOCATION - 1u) / PIXELS_PER_INVOCATION;
+    let y = index / per_row;
+    let first = index % per_row * PIXELS_PER_INVOCATION;
+    if y >= lp.height {
+        return Run(0u, 0, 0);
+    }
+    return Run(y * lp.width, i32(first), i32(min(PIXELS_PER_INVOCATION, lp.width - first)));
+}
+
+// Run `index` of the columns: neighbouring invocations take neighbouring columns.
+fn column_run(index: u32) -> Run {
+    let first = index / lp.width * PIXELS_PER_INVOCATION;
+    if first >= lp.height {
+        return Run(0u, 0, 0);
+    }
+    return Run(index % lp.width, i32(first),
+               i32(min(PIXELS_PER_INVOCATION, lp.height - first)));
+}
+
 fn rendered_rgb(p: u32) -> vec3<f32> {
     let b = p * PIXEL_CHANNELS;
     return vec3<f32>(pixels[b], pixels[b + 1u], pixels[b + 2u]);
@@ -186,8 +219,9 @@ fn write_partials(group: u32, sums: array<vec4<f32>, 2>, lid: u32) {
 
 // One workgroup: the sum of every workgroup's partials, into totals[first..first + 8].
 fn total_partials(first: u32, lid: u32) {
-    let per_group = GROUP * PIXELS_PER_INVOCATION;
-    let groups = (pixel_count() + per_group - 1u) / per_group;
+    // The column runs' workgroups (ssim_columns; pearson_terms has as many).
+    let runs = lp.width * ((lp.height + PIXELS_PER_INVOCATION - 1u) / PIXELS_PER_INVOCATION);
+    let groups = (runs + GROUP - 1u) / GROUP;
     var lo = vec4<f32>(0.0);
     var hi = vec4<f32>(0.0);
     for (var g = lid; g < groups; g += GROUP) {
@@ -205,62 +239,49 @@ fn total_partials(first: u32, lid: u32) {
     }
 }
 
-// Row pass of the window over x, t, x², t², x·t (kornia filters along x first).
+// Row pass of the window over x, t, x², t², x·t (kornia filters along x first), a row run
+// of PIXELS_PER_INVOCATION pixels per invocation (`row_run`).
 @compute @workgroup_size(256)
 fn ssim_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
              @builtin(local_invocation_index) lid: u32) {
-    let p = linear_workgroup(wid, nwg) * GROUP + lid;
-    if p >= pixel_count() {
+    let run = row_run(linear_workgroup(wid, nwg) * GROUP + lid);
+    if run.count == 0 {
         return;
     }
     let w = i32(lp.width);
-    let x0 = i32(p % lp.width);
-    let row = p - p % lp.width;
     let r = i32(lp.radius);
-    var mx = vec3<f32>(0.0);
-    var mt = vec3<f32>(0.0);
-    var mxx = vec3<f32>(0.0);
-    var mtt = vec3<f32>(0.0);
-    var mxt = vec3<f32>(0.0);
-    for (var t = -r; t <= r; t++) {
-        let q = row + reflect(x0 + t, w);
-        let k = tap(t + r);
+    var mx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var mt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var mxx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var mtt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var mxt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    for (var j = run.first - r; j < run.first + run.count + r; j++) {
+        let q = run.start + reflect(j, w);
         let x = rendered_rgb(q);
         let y = ssim_target(q);
-        mx += k * x;
-        mt += k * y;
-        mxx += k * (x * x);
-        mtt += k * (y * y);
-        mxt += k * (x * y);
+        for (var o = max(0, j - r - run.first); o <= min(run.count - 1, j + r - run.first); o++) {
+            let k = tap(j - run.first - o + r);
+            mx[o] += k * x;
+            mt[o] += k * y;
+            mxx[o] += k * (x * x);
+            mtt[o] += k * (y * y);
+            mxt[o] += k * (x * y);
+        }
     }
-    let base = p * MOMENTS;
-    moments[base] = vec4<f32>(mx, 0.0);
-    moments[base + 1u] = vec4<f32>(mt, 0.0);
-    moments[base + 2u] = vec4<f32>(mxx, 0.0);
-    moments[base + 3u] = vec4<f32>(mtt, 0.0);
-    moments[base + 4u] = vec4<f32>(mxt, 0.0);
+    for (var o = 0; o < run.count; o++) {
+        let base = (run.start + u32(run.first + o)) * MOMENTS;
+        moments[base] = vec4<f32>(mx[o], 0.0);
+        moments[base + 1u] = vec4<f32>(mt[o], 0.0);
+        moments[base + 2u] = vec4<f32>(mxx[o], 0.0);
+        moments[base + 3u] = vec4<f32>(mtt[o], 0.0);
+        moments[base + 4u] = vec4<f32>(mxt[o], 0.0);
+    }
 }
 
-// Column pass, the SSIM map and its gradient coefficients at pixel p; returns p's summands
-// of sums A.
-fn ssim_column(p: u32) -> array<vec4<f32>, 2> {
-    let x0 = p % lp.width;
-    let y0 = i32(p / lp.width);
-    let r = i32(lp.radius);
-    var mu1 = vec3<f32>(0.0);
-    var mu2 = vec3<f32>(0.0);
-    var exx = vec3<f32>(0.0);
-    var ett = vec3<f32>(0.0);
-    var ext = vec3<f32>(0.0);
-    for (var t = -r; t <= r; t++) {
-        let q = (reflect(y0 + t, i32(lp.height)) * lp.width + x0) * MOMENTS;
-        let k = tap(t + r);
-        mu1 += k * moments[q].xyz;
-        mu2 += k * moments[q + 1u].xyz;
-        exx += k * moments[q + 2u].xyz;
-        ett += k * moments[q + 3u].xyz;
-        ext += k * moments[q + 4u].xyz;
-    }
+// The SSIM map and its gradient coefficients at pixel p from its window moments (the
+// column pass of the row-filtered x, t, x², t², x·t); returns p's summands of sums A.
+fn ssim_at(p: u32, mu1: vec3<f32>, mu2: vec3<f32>, exx: vec3<f32>, ett: vec3<f32>,
+           ext: vec3<f32>) -> array<vec4<f32>, 2> {
     // S = A1 A2 / (B1 B2 + eps) per channel: A1 = 2μxμt + C1, A2 = 2(E[xt] − μxμt) + C2,
     // B1 = μx² + μt² + C1, B2 = E[x²] − μx² + E[t²] − μt² + C2.
     let mu1_sq = mu1 * mu1;
@@ -293,21 +314,43 @@ fn ssim_column(p: u32) -> array<vec4<f32>, 2> {
     );
 }
 
-// Each invocation of the summing passes takes PIXELS_PER_INVOCATION pixels, so that few
-// workgroups pay for the tree's barriers (costly on CPU adapters).
+// Column pass, a column run per invocation (`column_run`); its pixels' summands of sums A
+// are summed per workgroup.
 @compute @workgroup_size(256)
 fn ssim_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_index) lid: u32) {
     let group = linear_workgroup(wid, nwg);
+    let run = column_run(group * GROUP + lid);
+    let h = i32(lp.height);
+    let r = i32(lp.radius);
+    var mu1: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var mu2: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var exx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var ett: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var ext: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    for (var j = run.first - r; run.count > 0 && j < run.first + run.count + r; j++) {
+        let q = (run.start + reflect(j, h) * lp.width) * MOMENTS;
+        let m1 = moments[q].xyz;
+        let m2 = moments[q + 1u].xyz;
+        let mxx = moments[q + 2u].xyz;
+        let mtt = moments[q + 3u].xyz;
+        let mxt = moments[q + 4u].xyz;
+        for (var o = max(0, j - r - run.first); o <= min(run.count - 1, j + r - run.first); o++) {
+            let k = tap(j - run.first - o + r);
+            mu1[o] += k * m1;
+            mu2[o] += k * m2;
+            exx[o] += k * mxx;
+            ett[o] += k * mtt;
+            ext[o] += k * mxt;
+        }
+    }
     var lo = vec4<f32>(0.0);
     var hi = vec4<f32>(0.0);
-    for (var k = 0u; k < PIXELS_PER_INVOCATION; k++) {
-        let p = (group * PIXELS_PER_INVOCATION + k) * GROUP + lid;
-        if p < pixel_count() {
-            let terms = ssim_column(p);
-            lo += terms[0];
-            hi += terms[1];
-        }
+    for (var o = 0; o < run.count; o++) {
+        let p = run.start + u32(run.first + o) * lp.width;
+        let terms = ssim_at(p, mu1[o], mu2[o], exx[o], ett[o], ext[o]);
+        lo += terms[0];
+        hi += terms[1];
     }
     write_partials(group, workgroup_sums(lo, hi, lid), lid);
 }
@@ -383,50 +426,42 @@ fn coefficients(q: u32, columns: bool) -> Adjoint {
 }
 
 // Adjoint of a reflect-padded window pass along an axis of n items (`stride` apart from
-// `first`), at index i: Σ tap(j − o + r) · coefficients(o) over the outputs o whose window
-// read index j, where j is i itself and, near a border, the mirror images that reflect onto
-// i: −i (read when 1 ≤ i ≤ r) and 2(n − 1) − i (read when n − 1 − r ≤ i ≤ n − 2).
-fn window_adjoint(i: i32, n: i32, first: u32, stride: u32, columns: bool) -> Adjoint {
+// `run.start`), at each item i of `run`: Σ tap · coefficients(o) over the outputs o whose
+// window read i, directly or, near a border, through its mirror image. Those outputs lie
+// within r of the run (a mirror image is read only within r of the border, where i is),
+// and each is read once.
+fn window_adjoints(run: Run, n: i32, stride: u32, columns: bool)
+        -> array<Adjoint, PIXELS_PER_INVOCATION> {
     let r = i32(lp.radius);
-    var a = Adjoint(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
-    for (var image = 0; image < 3; image++) {
-        var j = i;
-        if image == 1 {
-            if i < 1 || i > r {
-                continue;
+    var a: array<Adjoint, PIXELS_PER_INVOCATION>;
+    let last = min(run.first + run.count - 1 + r, n - 1);
+    for (var o = max(run.first - r, 0); run.count > 0 && o <= last; o++) {
+        let c = coefficients(run.start + u32(o) * stride, columns);
+        for (var t = -r; t <= r; t++) {
+            let i = i32(reflect(o + t, n)) - run.first;
+            if i >= 0 && i < run.count {
+                let k = tap(t + r);
+                a[i].mu += k * c.mu;
+                a[i].exx += k * c.exx;
+                a[i].ext += k * c.ext;
             }
-            j = -i;
-        }
-        if image == 2 {
-            if i > n - 2 || i < n - 1 - r {
-                continue;
-            }
-            j = 2 * (n - 1) - i;
-        }
-        for (var o = max(j - r, 0); o <= min(j + r, n - 1); o++) {
-            let k = tap(j - o + r);
-            let c = coefficients(first + u32(o) * stride, columns);
-            a.mu += k * c.mu;
-            a.exx += k * c.exx;
-            a.ext += k * c.ext;
         }
     }
     return a;
 }
 
-// Column adjoint of the SSIM coefficients.
+// Column adjoint of the SSIM coefficients, a column run per invocation.
 @compute @workgroup_size(256)
 fn adjoint_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                    @builtin(local_invocation_index) lid: u32) {
-    let p = linear_workgroup(wid, nwg) * GROUP + lid;
-    if p >= pixel_count() {
-        return;
+    let run = column_run(linear_workgroup(wid, nwg) * GROUP + lid);
+    let a = window_adjoints(run, i32(lp.height), lp.width, true);
+    for (var o = 0; o < run.count; o++) {
+        let base = (run.start + u32(run.first + o) * lp.width) * COEFFS;
+        adjoint[base] = vec4<f32>(a[o].mu, 0.0);
+        adjoint[base + 1u] = vec4<f32>(a[o].exx, 0.0);
+        adjoint[base + 2u] = vec4<f32>(a[o].ext, 0.0);
     }
-    let a = window_adjoint(i32(p / lp.width), i32(lp.height), p % lp.width, lp.width, true);
-    let base = p * COEFFS;
-    adjoint[base] = vec4<f32>(a.mu, 0.0);
-    adjoint[base + 1u] = vec4<f32>(a.exx, 0.0);
-    adjoint[base + 2u] = vec4<f32>(a.ext, 0.0);
 }
 
 // Whether L_geo applies this step (the coverage rule of loss_at).
@@ -455,17 +490,20 @@ fn pearson_grad(p: u32) -> f32 {
     return -w * db / denom + w * totals[SUM_DB] / denom;
 }
 
-// The gradient w.r.t. the forward's pixels: the row adjoint of the SSIM coefficients, the
-// L1 and temporal signs, and L_geo through depth = D / alpha.
+// The gradient w.r.t. the forward's pixels, a row run per invocation: the row adjoint of
+// the SSIM coefficients, the L1 and temporal signs, and L_geo through depth = D / alpha.
 @compute @workgroup_size(256)
 fn pixel_grads(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                @builtin(local_invocation_index) lid: u32) {
-    let p = linear_workgroup(wid, nwg) * GROUP + lid;
-    if p >= pixel_count() {
-        return;
+    let run = row_run(linear_workgroup(wid, nwg) * GROUP + lid);
+    let a = window_adjoints(run, i32(lp.width), 1u, false);
+    for (var o = 0; o < run.count; o++) {
+        pixel_gradient(run.start + u32(run.first + o), a[o]);
     }
-    let row = p - p % lp.width;
-    let a = window_adjoint(i32(p % lp.width), i32(lp.width), row, 1u, false);
+}
+
+// Pixel p's gradient, given the row adjoint `a` of its SSIM coefficients.
+fn pixel_gradient(p: u32, a: Adjoint) {
     let x = rendered_rgb(p);
     let t = target_at(p);
     let w = weights[p];

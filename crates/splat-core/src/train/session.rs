@@ -516,6 +516,8 @@ impl TrainSession {
     fn encode_losses(&self, view: usize, pixels: &wgpu::Buffer) -> Result<(), RasterError> {
         let v = self.view(view)?;
         let view_buffers = ViewBuffers {
+            width: v.camera.width,
+            height: v.camera.height,
             params: &v.params,
             rgb: &v.rgb,
             weight: &v.weight,
