@@ -530,15 +530,15 @@ def fit_dynamic(
             reach = [reach_window(cameras[i], moving[i], drawn) for i in seeing]
             window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
             context = static[touching(static, window_cameras)]
-        if previous is not None:  # L_temporal's target: t − 1's render of the views
+        if previous is not None and reach is not None:  # L_temporal's target: t − 1's render
             with torch.no_grad():
-                views.previous = (
-                    torch.stack([inputs.render(Gaussians.cat([static, previous]), c).rgb
-                                 for c in cams])
-                    if reach is None
-                    else previous_in_windows(inputs.render, reach, cams, static_renders,
-                                             context, previous)
-                )  # fmt: skip
+                views.previous = previous_in_windows(
+                    inputs.render, reach, cams, static_renders, context, previous
+                )
+        elif previous is not None:
+            with torch.no_grad():
+                scene = Gaussians.cat([static, previous])
+                views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
         if reach is not None:
             views = windowed(views, reach, static_renders)
         iterations = dynamic_iterations(full, t, inputs.knobs.later_iteration_share)
