@@ -5,9 +5,15 @@ A dynamic step renders a window of each view with the static Gaussians that can 
 it (python/pano4d/lift/windows.py); this measures how a step's time follows each of the
 two, on one synthetic cloud (context spread over the view, a small trained set), so that
 bench/frames.py's stage times can be read: what is left when the context is empty is the
-step's fixed cost (dispatches, loss passes, Adam, the Python loop).
+step's fixed cost (dispatches, loss passes, Adam, the Python loop). Each case also times the
+loss passes alone (``TrainSession.loss_gradient`` on given pixels: the passes with the
+pixels' upload and the gradient's read-back), the part of a step that follows the pixels
+only.
 
-    .venv/bin/python bench/step_cost.py [--steps 40] [--json bench/out/step_cost.json]
+    [PANO4D_PYTHON=other/python] .venv/bin/python bench/step_cost.py [--steps 40]
+        [--json bench/out/step_cost.json]
+
+PANO4D_PYTHON runs another checkout's package (with its extension), for a before/after.
 """
 
 from __future__ import annotations
@@ -18,12 +24,13 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "python"))
+sys.path.insert(0, os.environ.get("PANO4D_PYTHON", str(REPO / "python")))
 
 from pano4d.camera import Camera  # noqa: E402
 from pano4d.fsutil import write_json_atomic  # noqa: E402
@@ -49,7 +56,9 @@ def cloud(seed: int, n: int, centre: list[float], spread: float, scale: float) -
     )
 
 
-def seconds_per_step(context: int, side: int, steps: int) -> float:
+def seconds_per_step(context: int, side: int, steps: int) -> tuple[float, float]:
+    """Seconds a step takes, and its loss passes alone, with ``context`` Gaussians at
+    ``side`` pixels."""
     camera = Camera.from_fov(90.0, side, side)
     gen = torch.Generator().manual_seed(2)
     views = TrainViews(
@@ -64,14 +73,20 @@ def seconds_per_step(context: int, side: int, steps: int) -> float:
         cloud(1, TRAINED, [5.0, 0.5, 0.2], 0.5, 0.05), views, knobs,
         context=cloud(0, context, [5.0, 0.0, 0.0], 2.0, 0.1),
     )  # fmt: skip
-    for _ in range(5):  # warm-up: pipelines, buffers
-        trainer.train_step()
-    trainer._session.loss()  # waits for the device
-    start = time.perf_counter()
-    for _ in range(steps):
-        trainer.train_step()
-    trainer._session.loss()
-    return (time.perf_counter() - start) / steps
+    session = trainer._session
+    pixels = torch.rand(side * side * 5, generator=gen).numpy()
+
+    def timed(run: Callable[[], object]) -> float:
+        for _ in range(5):  # warm-up: pipelines, buffers
+            run()
+        session.loss()  # waits for the device
+        start = time.perf_counter()
+        for _ in range(steps):
+            run()
+        session.loss()
+        return (time.perf_counter() - start) / steps
+
+    return timed(trainer.train_step), timed(lambda: session.loss_gradient(0, pixels))
 
 
 def main() -> None:
@@ -79,12 +94,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--json", type=Path, default=REPO / "bench" / "out" / "step_cost.json")
     args = parser.parse_args()
-    print(f"{'context':>8}{'side':>6}{'s / step':>10}")
+    print(f"{'context':>8}{'side':>6}{'s / step':>10}{'loss s':>10}")
     rows = []
     for context, side in CASES:
-        s = seconds_per_step(context, side, args.steps)
-        rows.append({"context": context, "trained": TRAINED, "side": side, "s_per_step": s})
-        print(f"{context:>8}{side:>6}{s:>10.4f}", flush=True)
+        step, loss = seconds_per_step(context, side, args.steps)
+        rows.append({"context": context, "trained": TRAINED, "side": side, "s_per_step": step,
+                     "loss_s": loss})  # fmt: skip
+        print(f"{context:>8}{side:>6}{step:>10.4f}{loss:>10.4f}", flush=True)
     write_json_atomic(args.json, {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "load": os.getloadavg()},
