@@ -368,7 +368,9 @@ fn totals_a(@builtin(local_invocation_index) lid: u32) {
     }
 }
 
-// The weighted moments of the centred depths (sums B) per workgroup.
+// The weighted moments of the centred depths (sums B) per workgroup, PIXELS_PER_INVOCATION
+// pixels per invocation (as many workgroups as the column runs'): few workgroups pay for
+// the tree's barriers, costly on CPU adapters.
 @compute @workgroup_size(256)
 fn pearson_terms(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                  @builtin(local_invocation_index) lid: u32) {
