@@ -122,11 +122,23 @@ def textured(frame: np.ndarray) -> bool:
 
 
 def check_scene_and_time_change(
-    b: Browser, scene_file: Path, change_time: functools.partial[None]
+    b: Browser,
+    scene_file: Path,
+    change_time: functools.partial[None],
+    show_first: functools.partial[None] | None = None,
 ) -> None:
+    """The page shows timestamp 0 as `pano4d render` draws it, then (after ``change_time``)
+    timestamp 1, changed only where the blob is. ``show_first`` (a page that plays its
+    timeline) pauses it on timestamp 0: once before, and once more if the first settled
+    frame is not timestamp 0 (typed while the page loads, the pause can land after it)."""
+    if show_first is not None:
+        show_first()
     first = b.wait_for_scene(textured)
     size = (first.shape[1], first.shape[0])
     ref0, ref1 = reference(scene_file, 0, size), reference(scene_file, 1, size)
+    if show_first is not None and psnr(first, ref0) < MIN_PSNR_DB:
+        show_first()
+        first = b.wait_for_scene(lambda f: textured(f) and psnr(f, ref0) >= MIN_PSNR_DB, 30.0)
     assert psnr(first, ref0) >= MIN_PSNR_DB, psnr(first, ref0)
     change_time()
     second = b.wait_for_scene(lambda f: textured(f) and float(np.abs(f - first).max()) > 0.3)
@@ -195,8 +207,11 @@ def test_web_folder_shows_the_scene_and_its_timeline(
             box.send_keys(Keys.CONTROL, "a")
             box.send_keys(seconds)
 
-        show_time("0.5")  # pauses the playback on timestamp 0 (it plays 0 s to 1 s)
-        check_scene_and_time_change(browser, scene_file, functools.partial(show_time, "1.5"))
+        # 0.5 s pauses the playback on timestamp 0 (it plays 0 s to 1 s), 1.5 s on timestamp 1
+        check_scene_and_time_change(
+            browser, scene_file, functools.partial(show_time, "1.5"),
+            functools.partial(show_time, "0.5"),
+        )  # fmt: skip
         if os.environ.get("PANO4D_WEB_SCREENSHOT"):  # README's picture: the whole page
             browser.driver.get_screenshot_as_file(os.environ["PANO4D_WEB_SCREENSHOT"])
 
