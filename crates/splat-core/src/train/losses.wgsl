@@ -158,6 +158,30 @@ fn column_run(index: u32) -> Run {
                i32(min(PIXELS_PER_INVOCATION, lp.height - first)));
 }
 
+// x, t, x², t², x·t (rgb each) of a pixel, or their sums over its window.
+struct Moments {
+    x: vec3<f32>,
+    t: vec3<f32>,
+    xx: vec3<f32>,
+    tt: vec3<f32>,
+    xt: vec3<f32>,
+}
+
+// Adds item j's moments `v` to the window sums of the run's items whose window reads j,
+// each with its tap (the two window passes' accumulation).
+fn add_to_windows(sums: ptr<function, array<Moments, PIXELS_PER_INVOCATION>>, run: Run, j: i32,
+                  v: Moments) {
+    let r = i32(lp.radius);
+    for (var o = max(0, j - r - run.first); o <= min(run.count - 1, j + r - run.first); o++) {
+        let k = tap(j - run.first - o + r);
+        (*sums)[o].x += k * v.x;
+        (*sums)[o].t += k * v.t;
+        (*sums)[o].xx += k * v.xx;
+        (*sums)[o].tt += k * v.tt;
+        (*sums)[o].xt += k * v.xt;
+    }
+}
+
 fn rendered_rgb(p: u32) -> vec3<f32> {
     let b = p * PIXEL_CHANNELS;
     return vec3<f32>(pixels[b], pixels[b + 1u], pixels[b + 2u]);
@@ -250,38 +274,31 @@ fn ssim_rows(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg
     }
     let w = i32(lp.width);
     let r = i32(lp.radius);
-    var mx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var mt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var mxx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var mtt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var mxt: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var sums: array<Moments, PIXELS_PER_INVOCATION>;
     for (var j = run.first - r; j < run.first + run.count + r; j++) {
         let q = run.start + reflect(j, w);
         let x = rendered_rgb(q);
         let y = ssim_target(q);
-        for (var o = max(0, j - r - run.first); o <= min(run.count - 1, j + r - run.first); o++) {
-            let k = tap(j - run.first - o + r);
-            mx[o] += k * x;
-            mt[o] += k * y;
-            mxx[o] += k * (x * x);
-            mtt[o] += k * (y * y);
-            mxt[o] += k * (x * y);
-        }
+        add_to_windows(&sums, run, j, Moments(x, y, x * x, y * y, x * y));
     }
     for (var o = 0; o < run.count; o++) {
         let base = (run.start + u32(run.first + o)) * MOMENTS;
-        moments[base] = vec4<f32>(mx[o], 0.0);
-        moments[base + 1u] = vec4<f32>(mt[o], 0.0);
-        moments[base + 2u] = vec4<f32>(mxx[o], 0.0);
-        moments[base + 3u] = vec4<f32>(mtt[o], 0.0);
-        moments[base + 4u] = vec4<f32>(mxt[o], 0.0);
+        moments[base] = vec4<f32>(sums[o].x, 0.0);
+        moments[base + 1u] = vec4<f32>(sums[o].t, 0.0);
+        moments[base + 2u] = vec4<f32>(sums[o].xx, 0.0);
+        moments[base + 3u] = vec4<f32>(sums[o].tt, 0.0);
+        moments[base + 4u] = vec4<f32>(sums[o].xt, 0.0);
     }
 }
 
-// The SSIM map and its gradient coefficients at pixel p from its window moments (the
+// The SSIM map and its gradient coefficients at pixel p from its window sums `m` (the
 // column pass of the row-filtered x, t, x², t², x·t); returns p's summands of sums A.
-fn ssim_at(p: u32, mu1: vec3<f32>, mu2: vec3<f32>, exx: vec3<f32>, ett: vec3<f32>,
-           ext: vec3<f32>) -> array<vec4<f32>, 2> {
+fn ssim_at(p: u32, m: Moments) -> array<vec4<f32>, 2> {
+    let mu1 = m.x;
+    let mu2 = m.t;
+    let exx = m.xx;
+    let ett = m.tt;
+    let ext = m.xt;
     // S = A1 A2 / (B1 B2 + eps) per channel: A1 = 2μxμt + C1, A2 = 2(E[xt] − μxμt) + C2,
     // B1 = μx² + μt² + C1, B2 = E[x²] − μx² + E[t²] − μt² + C2.
     let mu1_sq = mu1 * mu1;
@@ -323,32 +340,18 @@ fn ssim_columns(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let run = column_run(group * GROUP + lid);
     let h = i32(lp.height);
     let r = i32(lp.radius);
-    var mu1: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var mu2: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var exx: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var ett: array<vec3<f32>, PIXELS_PER_INVOCATION>;
-    var ext: array<vec3<f32>, PIXELS_PER_INVOCATION>;
+    var sums: array<Moments, PIXELS_PER_INVOCATION>;
     for (var j = run.first - r; run.count > 0 && j < run.first + run.count + r; j++) {
         let q = (run.start + reflect(j, h) * lp.width) * MOMENTS;
-        let m1 = moments[q].xyz;
-        let m2 = moments[q + 1u].xyz;
-        let mxx = moments[q + 2u].xyz;
-        let mtt = moments[q + 3u].xyz;
-        let mxt = moments[q + 4u].xyz;
-        for (var o = max(0, j - r - run.first); o <= min(run.count - 1, j + r - run.first); o++) {
-            let k = tap(j - run.first - o + r);
-            mu1[o] += k * m1;
-            mu2[o] += k * m2;
-            exx[o] += k * mxx;
-            ett[o] += k * mtt;
-            ext[o] += k * mxt;
-        }
+        let row = Moments(moments[q].xyz, moments[q + 1u].xyz, moments[q + 2u].xyz,
+                          moments[q + 3u].xyz, moments[q + 4u].xyz);
+        add_to_windows(&sums, run, j, row);
     }
     var lo = vec4<f32>(0.0);
     var hi = vec4<f32>(0.0);
     for (var o = 0; o < run.count; o++) {
         let p = run.start + u32(run.first + o) * lp.width;
-        let terms = ssim_at(p, mu1[o], mu2[o], exx[o], ett[o], ext[o]);
+        let terms = ssim_at(p, sums[o]);
         lo += terms[0];
         hi += terms[1];
     }
