@@ -92,6 +92,25 @@ def test_distance_wraps_across_the_seam_and_over_the_pole() -> None:
     assert distance[40, 10] == 20.0  # capped
 
 
+def test_distance_is_the_exact_separable_transform_away_from_the_poles() -> None:
+    # Within 60° of the horizon no row is pooled, so each distance is exactly the least
+    # rows² + (columns · cos latitude)² over the True pixels (columns wrapping round the
+    # seam), capped.
+    gen = torch.Generator().manual_seed(3)
+    mask = torch.zeros(HEIGHT, WIDTH, dtype=torch.bool)
+    mask[40:88] = torch.rand(48, WIDTH, generator=gen) < 0.01
+    mask[60, 250:] = mask[60, :3] = True  # a run across the seam
+    cap = 6.5
+    distance = sphere_distance_px(mask, cap)[34:94].double()
+    rows, cols = torch.nonzero(mask, as_tuple=True)
+    j = torch.arange(34, 94)
+    spacing = torch.cos(math.pi * (0.5 - (j.double() + 0.5) / HEIGHT))
+    across = (torch.arange(WIDTH)[:, None] - cols).abs()
+    across = torch.minimum(across, WIDTH - across)  # (W, P)
+    squared = (j[:, None, None] - rows).square() + (across * spacing[:, None, None]).square()
+    assert torch.allclose(distance, squared.amin(dim=-1).sqrt().clamp(max=cap), atol=1e-4)
+
+
 def test_dilation_grows_through_seam_and_pole() -> None:
     mask = box_mask(250, 0, 4, 6)  # at the top, across the seam
     grown = dilate(mask, 4.0)
@@ -169,6 +188,25 @@ def test_frames_loop_without_a_jump() -> None:
     steps = [metrics.mean_abs_difference(a, b, mask) for a, b in itertools.pairwise(frames)]
     loop = metrics.mean_abs_difference(frames[-1], frames[0], mask)
     assert 0.5 * np.mean(steps) < loop < 1.5 * np.mean(steps)
+
+
+def test_mid_loop_frames_keep_the_texture_contrast() -> None:
+    # Mid-loop the two ends are far apart, so their detail is uncorrelated: a plain
+    # cross-fade would average it down to 1/√2 (0.6 of the input's here, with the
+    # resampling's own blur); the variance-preserving one keeps it (0.8).
+    mask = box_mask(16, 24, 240, 104)
+    image, frames = animate(mask, Motion(direction_deg=0, speed=3.0), frames=8, only=(4,))
+    inner = box_mask(40, 40, 216, 88)
+
+    def detail(x: torch.Tensor) -> torch.Tensor:
+        planes = x.permute(2, 0, 1)[None]
+        blurred = torch.nn.functional.avg_pool2d(
+            planes, 5, stride=1, padding=2, count_include_pad=False
+        )
+        return (planes - blurred)[0].permute(1, 2, 0)[inner]
+
+    ratio = detail(frames[0]).std(dim=0).mean() / detail(image).std(dim=0).mean()
+    assert 0.72 < float(ratio) < 1.0
 
 
 def test_region_across_the_seam_animates_continuously() -> None:

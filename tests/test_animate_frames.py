@@ -154,3 +154,73 @@ def test_video_metrics_of_the_box_rows_are_those_of_the_whole_frames() -> None:
     assert rows.steps_moving == pytest.approx(whole.steps_moving, rel=1e-5)
     assert min(whole.steps_moving) > 1e-3
     assert rows.result() == pytest.approx(whole.result(), rel=1e-5, abs=1e-9)
+
+
+# --- the working-size store ------------------------------------------------------------------
+def test_a_working_size_store_beside_the_full_resolution_one(tmp_path: Path) -> None:
+    """`pano4d train` animates at the working size into a store of its own: frames of that
+    size, bit-exact (EXR float), static pixels the input area-downsampled once; the
+    full-resolution store of `pano4d animate` is another store, and neither run makes the
+    other's stale; another size is a third store."""
+    cfg = across_the_seam(tmp_path)
+    size = (128, 64)
+    small = run_animate(cfg, size, progress=False)
+    assert small.folder == tmp_path / "out" / "animate" / "128x64"
+    assert small.store.size() == size and small.store.static_path.suffix == ".exr"
+    full = run_animate(cfg, progress=False)
+    assert full.folder == tmp_path / "out" / "animate" and full.store.size() == (WIDTH, HEIGHT)
+    assert run_animate(cfg, size, progress=False).skipped
+    assert run_animate(cfg, progress=False).skipped
+    assert run_animate(cfg, (WIDTH, HEIGHT), progress=False).skipped  # its own size: one store
+    assert run_animate(cfg, (256, 128), progress=False).folder.name == "256x128"
+
+    source = pipeline.animation_input(cfg, size)
+    expected = area_resize(torch.from_numpy(read_panorama(cfg.panorama)), size).numpy()
+    assert np.array_equal(source.panorama, expected)
+    still = source.regions.blend.numpy() == 0
+    frames = list(small.store.frames())
+    assert all(f.shape == (64, 128, 3) for f in frames)
+    for frame in frames:
+        assert np.array_equal(frame[still].view(np.uint32), expected[still].view(np.uint32))
+    render, _ = pipeline.frame_renderer(cfg, source, None)
+    made = enforce_static(render(1), expected, source.regions.blend.numpy())
+    assert np.array_equal(frames[1].view(np.uint32), made.view(np.uint32))  # stored exactly
+    assert float(np.abs(frames[1] - frames[0]).mean()) > 1e-3
+
+
+def test_working_size_frames_match_the_full_resolution_frames_downsampled(
+    tmp_path: Path,
+) -> None:
+    """Against the full-resolution frames area-downsampled as `prepare` does: pixels one
+    working pixel or more from the blend equal bit for bit, the moving region close."""
+    cfg = across_the_seam(tmp_path)
+    size = (256, 128)
+    whole = run_animate(cfg, progress=False).store.area_downsampled(size)
+    small = run_animate(cfg, size, progress=False).store.area_downsampled(size)
+    blend = pipeline.animation_input(cfg, size).regions.blend
+    near = torch.nn.functional.max_pool2d((blend > 0)[None, None].float(), 3, 1, 1)[0, 0] > 0
+    far = ~near
+    assert torch.equal(small[:, far], whole[:, far])
+    moving = blend > 0
+    for t in range(1, cfg.animate.frames):
+        mse = float(((small[t][moving] - whole[t][moving]) ** 2).mean())
+        assert -10 * np.log10(mse) > 25.0, t
+
+
+def test_a_region_smaller_than_a_working_pixel_keeps_one(tmp_path: Path) -> None:
+    """A box of a few input pixels at the north pole covers no working pixel by half: it is
+    grown to its most-covered working pixel (the editor preview's rule) and animates; a box
+    between pixel centres covers no input pixel and is refused with one line naming it."""
+    from pano4d.regions import RegionError
+
+    cfg = across_the_seam(tmp_path)
+    tiny = cfg.regions[0].model_copy(update={"box": [100.0, 0.0, 103.0, 2.0]})
+    cfg = cfg.model_copy(update={"regions": [tiny]})
+    source = pipeline.animation_input(cfg, (64, 32))
+    assert int(source.regions.mask.sum()) == 1 and float(source.regions.blend.max()) > 0
+    result = run_animate(cfg, (64, 32), progress=False)
+    box = result.store.box()
+    assert (box.top, box.count) == (0, 1)
+    empty = tiny.model_copy(update={"box": [100.6, 10.6, 101.4, 11.4]})
+    with pytest.raises(RegionError, match=r"regions\[0\] \(box\) covers no pixel of the 512×256"):
+        pipeline.animation_input(cfg.model_copy(update={"regions": [empty]}), (64, 32))

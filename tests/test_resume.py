@@ -44,7 +44,7 @@ def everything_reads_back(output: Path) -> None:
             continue
         if path.suffix == ".pt":
             assert isinstance(torch.load(path, weights_only=False), dict), path
-        elif path.suffix == ".png":
+        elif path.suffix in (".png", ".exr"):
             read_image(path)
         elif path.suffix == ".json":
             json.loads(path.read_text())
@@ -59,10 +59,11 @@ def assert_same_scene(a: Path, b: Path) -> None:
         ga, gb = sa.at(t).tensors(), sb.at(t).tensors()
         for name in ga:
             assert torch.equal(ga[name], gb[name]), (t, name)
-    frames = sorted((a / "output" / "animate" / "moving").glob("*"))
-    assert len(frames) > 2, "the frame store: static.png, box.json and the frames"
+    # The animating phase's store at the working size (output/animate/WxH/moving).
+    frames = sorted((a / "output" / "animate").glob("*/moving/*"))
+    assert len(frames) > 2, "the frame store: static.exr, box.json and the frames"
     for frame in frames:
-        other = b / "output" / "animate" / "moving" / frame.name
+        other = b / frame.relative_to(a)
         assert frame.read_bytes() == other.read_bytes(), frame.name
 
 

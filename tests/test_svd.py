@@ -285,6 +285,27 @@ def test_animate_svd_moves_only_the_region_and_keeps_the_rest_bit_identical(
     assert float((video[:, :, inner] - panorama[:, inner]).abs().mean()) > 1e-3
 
 
+def test_animate_svd_writes_at_the_size_asked_for(tmp_path: Path, tiny_svd: Path) -> None:
+    """The animating phase at a working size with svd: the UNet's views keep the size the
+    input's resolution gives them (the same batching as at full size), the video is decoded
+    at the working size, and outside the blend its frames are the input area-downsampled,
+    bit for bit."""
+    from pano4d.animate.frames import area_resize
+    from pano4d.animate.pipeline import animation_input, run_animate
+
+    cfg, _, _ = _scene(tmp_path, tiny_svd, width=512)
+    size = (192, 96)  # not a multiple of the VAE's 8 in height: decoded larger, then resized
+    small = run_animate(cfg, size, progress=False)
+    full = run_animate(cfg, progress=False)
+    assert small.store.size() == size
+    assert small.metrics["svd_view_size"] == full.metrics["svd_view_size"]
+    expected = area_resize(torch.from_numpy(read_image(cfg.panorama)[:, :, :3]), size)
+    still = animation_input(cfg, size).regions.blend == 0
+    frames = torch.stack([torch.from_numpy(f) for f in small.store.frames()])
+    assert torch.equal(frames[:, still], expected[still][None].expand(FRAMES, -1, -1))
+    assert float((frames[:, ~still] - expected[~still]).abs().mean()) > 1e-3
+
+
 def test_animate_metrics_record_the_unet_batch(tmp_path: Path, tiny_svd: Path) -> None:
     """`pano4d animate` with the svd backend writes how it batched the UNet into
     metrics.json: the batch used is within the attention bound and the memory budget's

@@ -28,11 +28,20 @@ PANORAMA_MIN_WIDTH = 512
 PANORAMA_MIN_HEIGHT = 256
 WRITABLE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr")
 JPEG_QUALITY = 95
-# zlib level 3 writes a 4096×2048 photo about 3× faster than the default 6, 5 % larger.
-PNG_ZLIB_LEVEL = 3
+# libpng's default tries all five row filters on every row and keeps the best; the "sub"
+# filter alone with zlib level 1 writes a 16-bit frame crop of a 6144×3072 photo 2–3× faster
+# than that at level 3, 10 % larger (bench/RESULTS.md, "The animating phase at the working
+# size"). Level 3 with every filter was itself 3× faster than zlib's default 6.
+PNG_ZLIB_LEVEL = 1
+PNG_FILTER_SUB = 16  # libpng's PNG_FILTER_SUB
 # A complete PNG ends with the IEND chunk; libpng reads the pixels without it and says
 # nothing, so a copy cut off in the last few bytes would otherwise pass as whole.
 _PNG_IEND = b"IEND\xaeB`\x82"
+# ffmpeg's encoder arguments for write_video's codecs.
+VIDEO_CODECS = {
+    "h264": ("-c:v", "libx264"),
+    "h265": ("-c:v", "libx265", "-tag:v", "hvc1", "-x265-params", "log-level=error"),
+}
 
 
 class ImageError(InputError, ValueError):
@@ -209,6 +218,7 @@ def write_image(path: PathLike, image: np.ndarray, bits: int | None = None) -> N
         spec.attribute("Compression", f"jpeg:{JPEG_QUALITY}")
     elif suffix == ".png":
         spec.attribute("png:compressionLevel", PNG_ZLIB_LEVEL)
+        spec.attribute("png:filter", PNG_FILTER_SUB)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
@@ -223,8 +233,11 @@ def write_image(path: PathLike, image: np.ndarray, bits: int | None = None) -> N
             out.close()
 
 
-def write_video(path: PathLike, frames: Iterable[np.ndarray], fps: float) -> int:
-    """Encode frames (H, W, 3) float in [0, 1] or uint8 as an H.264 MP4 through ffmpeg.
+def write_video(
+    path: PathLike, frames: Iterable[np.ndarray], fps: float, codec: str = "h264"
+) -> int:
+    """Encode frames (H, W, 3) float in [0, 1] or uint8 as an MP4 through ffmpeg, H.264 or
+    (``codec="h265"``) H.265, tagged hvc1 as Apple's and headsets' players want it.
 
     Odd sizes are padded by one pixel (yuv420p needs even sizes). The file appears only
     when encoding succeeded. Returns the number of frames written.
@@ -250,7 +263,7 @@ def write_video(path: PathLike, frames: Iterable[np.ndarray], fps: float) -> int
             "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}", "-r", f"{fps}",
             "-i", "-",
             "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-            "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18",
+            *VIDEO_CODECS[codec], "-pix_fmt", "yuv420p", "-crf", "18",
             "-movflags", "+faststart", "-f", "mp4", str(tmp),
         ]  # fmt: skip
         process = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=log)

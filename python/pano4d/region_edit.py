@@ -394,15 +394,11 @@ _RegionDumper.add_representer(_Flow, _RegionDumper.represent_flow)
 def render_preview(
     scene: PathLike, regions: list[dict[str, Any]], out_dir: PathLike, width: int = PREVIEW_WIDTH
 ) -> dict[str, Any]:
-    """Animate ``regions`` with the ``flow`` backend on the panorama downscaled to ``width``
-    and write the loop as ``out_dir/0000.png`` … (8-bit). Uses the scene's frame count,
-    frame rate, border and seed; nothing is written beside scene.yaml."""
-    import torch
-    import torch.nn.functional as F
-
-    from pano4d.animate.flow import FlowAnimator
-    from pano4d.config import Motion
-    from pano4d.regions import region_mask, regions_from_masks
+    """Animate ``regions`` with the ``flow`` backend at ``width`` as ``pano4d train`` animates
+    at its working size (``animate.pipeline.animation_input``: the panorama and the regions
+    area-downsampled once) and write the loop as ``out_dir/0000.png`` … (8-bit). Uses the
+    scene's frame count, frame rate, border and seed; nothing is written beside scene.yaml."""
+    from pano4d.animate.pipeline import animation_input, frame_renderer
 
     started = time.perf_counter()
     scene = Path(scene).resolve()
@@ -410,29 +406,16 @@ def render_preview(
     edited = edited_config(cfg, scene, regions)
     if width < 64 or width % 2:
         raise EditError(f"the preview width must be an even number ≥ 64, got {width}")
-    panorama = torch.from_numpy(read_panorama(cfg.panorama))
-    full_h, full_w = panorama.shape[:2]
-    width = min(width, full_w)
+    width = min(width, image_size(cfg.panorama)[0])
     height = width // 2
-    small = F.interpolate(panorama.permute(2, 0, 1)[None], size=(height, width), mode="area")
-    small = small[0].permute(1, 2, 0).contiguous()
-    masks = []
-    for index, region in enumerate(edited.regions):
-        full = torch.from_numpy(np.ascontiguousarray(region_mask(region, full_w, full_h)))
-        mask = F.interpolate(full[None, None].float(), size=(height, width), mode="area")[0, 0]
-        if not (mask > 0).any():
-            raise EditError(f"regions[{index}] covers no pixel of the panorama")
-        # A pixel moves if the region covers half of it (or the most of it, for a sliver).
-        masks.append(mask >= min(0.5, float(mask.max())))
-    motions = [region.motion or Motion() for region in edited.regions]
-    border = round(cfg.animate.border_px * width / full_w)
-    animator = FlowAnimator(small, regions_from_masks(masks, motions, border), cfg.animate.frames,
-                            cfg.seed)  # fmt: skip
+    flow = edited.animate.model_copy(update={"backend": "flow"})
+    edited = edited.model_copy(update={"animate": flow})
+    render, _ = frame_renderer(edited, animation_input(edited, (width, height)), None)
     out = Path(out_dir)
     frames = []
     for t in range(cfg.animate.frames):
         path = out / f"{t:04d}.png"
-        write_image(path, animator.frame(t).numpy())
+        write_image(path, np.asarray(render(t)))
         frames.append(str(path))
     return {
         "frames": frames,

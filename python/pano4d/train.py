@@ -1,8 +1,8 @@
 """``pano4d train``: both phases end to end, resumable (docs/design.md, "Files a run writes").
 
-1. the animating phase (``pano4d.animate.pipeline.run_animate``; its frames in
-   output/animate/moving), unless output/animate/frames holds a complete set of whole
-   frames put there by hand;
+1. the animating phase at the working panorama's size (``lift.pipeline.animation_frames``:
+   ``pano4d.animate.pipeline.run_animate``, its frames in output/animate/WxH/moving),
+   unless output/animate/frames holds a complete set of whole frames put there by hand;
 2. the lifting phase (``pano4d.lift.pipeline.lift``): depth, alignment, the static and the
    dynamic Gaussians, each stage checkpointed in output/checkpoints/;
 3. its outputs (``pano4d.lift.export``): scene.ply4d, preview.mp4, contact.png, metrics.json.
@@ -26,11 +26,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pano4d.animate.frames import frame_suffix
 from pano4d.config import SceneConfig, config_hash, load_config
-from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints, TrainError
+from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints
 from pano4d.lift.export import export
-from pano4d.lift.pipeline import StepHook, lift, trainer_for
+from pano4d.lift.pipeline import (
+    StepHook,
+    animation_frames,
+    lift,
+    trainer_for,
+    working_panorama,
+)
 from pano4d.lift.pipeline import resume_point as lift_resume_point
 from pano4d.progress import Bars
 
@@ -101,36 +106,10 @@ def resume_point(cfg: SceneConfig) -> str | None:
     lifted = lift_resume_point(checkpoints_of(cfg), cfg.animate.frames)
     if lifted is not None:
         return lifted
-    animated = progress(cfg)
+    animated = progress(cfg, working_panorama(cfg)[1])
     if animated == "done":
         return "depth frame 0"
     return "animate" if animated == "started" else None
-
-
-def animation_frames(
-    cfg: SceneConfig, checkpoints: Checkpoints, progress: bool, on_step: StepHook | None
-) -> Path:
-    """The folder of the animation's frames (the animating phase's frame store, or whole
-    frames), after running the animating phase if needed.
-
-    Frames written by the animating phase are re-checked by it (it skips when its inputs are
-    unchanged); a complete set of whole frames put in output/animate/frames by hand, with no
-    record, is used as is."""
-    out = Path(cfg.output)
-    frames_dir = out / "animate" / "frames"
-    suffix = frame_suffix(cfg.panorama)
-    recorded = (out / "animate" / "done.json").is_file()
-    if recorded or not _frames_complete(frames_dir, cfg.animate.frames, suffix):
-        from pano4d.animate.pipeline import run_animate
-
-        animated = run_animate(cfg, progress=progress, on_step=on_step)
-        checkpoints.resumed("animate", frame=animated.resumed_at)
-        frames_dir = animated.store.folder
-        if not animated.store.complete():
-            raise TrainError(
-                f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
-            )
-    return frames_dir
 
 
 def kill_hook_from_env() -> StepHook | None:
@@ -152,10 +131,6 @@ def kill_hook_from_env() -> StepHook | None:
                 os.kill(os.getpid(), signal.SIGKILL)
 
     return kill
-
-
-def _frames_complete(folder: Path, count: int, suffix: str) -> bool:
-    return all((folder / f"{t:04d}{suffix}").is_file() for t in range(count))
 
 
 def demo(

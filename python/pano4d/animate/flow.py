@@ -20,8 +20,10 @@ sphere instead of the image plane:
   texture is unknown. There the local mean colour stands in, and the other end of the
   loop, if it sees moving texture, takes over (each end is weighted by how much moving
   texture surrounds it). The cross-fade preserves the texture's contrast around its
-  local mean (Heitz & Neyret 2018), so mid-loop frames are not washed out. The visible
-  motion fades to zero at the border through the soft blend weight.
+  local mean (Heitz & Neyret 2018), so mid-loop frames are not washed out; how
+  correlated the two ends are (close together, they need less rescaling) is a smooth
+  function of the traces, taken on the trace grid and interpolated with them. The
+  visible motion fades to zero at the border through the soft blend weight.
 
 Outside the regions every frame is the input, bit for bit; the soft border blends the two.
 Frames are produced one at a time; memory is the full-resolution image and a few tensors
@@ -31,6 +33,7 @@ the size of the moving region, processed in chunks.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -38,7 +41,7 @@ import torch.nn.functional as F
 from pano4d.animate.frames import FrameBox
 from pano4d.regions import Regions, angular_velocity_field
 from pano4d.smoothstep import smoothstep
-from pano4d.sphere import dir_to_equirect, equirect_directions
+from pano4d.sphere import equirect_directions
 
 TRACE_MAX_WIDTH = 512  # traces are computed on a grid at most this wide
 PERTURBATION = 0.08  # rms of the swirl, relative to the region's speed
@@ -69,22 +72,37 @@ class FlowAnimator:
         self.regions = regions
         self.frames = frames
         self.scale = _trace_scale(width, height)
+        self._to_grid = _angles_to_grid(width // self.scale, height // self.scale)
         self._waves = _perturbation_waves(seed)
         self._field = self._velocity_texture()
         self._backward, self._forward = self._trace_all()
-        self._pixels = torch.nonzero(regions.blend.reshape(-1) > 0)[:, 0]
-        # Colour times mask, and the mask, padded for sampling across the seam and poles.
-        mask = regions.mask.to(torch.float32)
-        image = self.panorama.permute(2, 0, 1) * mask
-        self._image = _pad_sphere(torch.cat([image, mask[None]]), 1)
-        self._local_mean = self._local_mean_texture(image, mask)
-
-    def _local_mean_texture(self, image: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """Padded trace-grid texture (4, h+2, w+2): the moving pixels' colour box-blurred
-        twice over LOCAL_MEAN_DEG, filled in where no moving pixel is near (3), and how
-        much of that neighbourhood moves (1): the local mean colour and its validity."""
+        # The pixels rendered, and where they sample the trace grid: the same every frame.
+        rows, columns = torch.nonzero(regions.blend > 0).unbind(1)
+        self._pixels = rows * width + columns
+        self._trace_grid = _pixel_grid(rows, columns, width, height, self.scale)
+        self._box_targets: tuple[FrameBox, torch.Tensor] | None = None
+        # Colour times mask, and the mask, padded for sampling across the seam and poles
+        # by one trace cell, s pixels, so that an angle has the same grid_sample
+        # coordinates here as in the trace-grid textures (``_angles_to_grid``). Written in
+        # place, as this is the one texture the size of the panorama.
         s = self.scale
-        pooled = F.avg_pool2d(torch.cat([image, mask[None]])[None], s)[0]
+        self._image = torch.empty(4, height + 2 * s, width + 2 * s, dtype=torch.float32)
+        mask = regions.mask.to(torch.float32)
+        torch.mul(self.panorama.permute(2, 0, 1), mask, out=self._image[:3, s:-s, s:-s])
+        self._image[3, s:-s, s:-s] = mask
+        _fill_sphere_border(self._image, s)
+        self._local_mean = self._local_mean_texture(self._image[:, s:-s, s:-s])
+
+    def _local_mean_texture(self, image: torch.Tensor) -> torch.Tensor:
+        """Padded trace-grid texture (4, h+2, w+2) of the moving pixels' colour times mask
+        and mask ``image`` (4, H, W): their colour box-blurred twice over LOCAL_MEAN_DEG,
+        filled in where no moving pixel is near (3), and how much of that neighbourhood
+        moves (1): the local mean colour and its validity."""
+        s = self.scale
+        h, w = image.shape[1] // s, image.shape[2] // s
+        # Means over s columns, then over s rows: on a view into the padded image, where
+        # avg_pool2d is several times slower.
+        pooled = image.unflatten(2, (w, s)).mean(dim=3).unflatten(1, (h, s)).mean(dim=2)
         radius = max(1, round(LOCAL_MEAN_DEG / 2 * pooled.shape[2] / 360.0))
         for _ in range(2):
             padded = _pad_sphere(pooled, radius)
@@ -103,7 +121,8 @@ class FlowAnimator:
         s = self.scale
         h, w = height // s, width // s
         omega = angular_velocity_field(self.regions, s)
-        covered = self.regions.mask.view(h, s, w, s).to(torch.float64).mean(dim=(1, 3))
+        # Pooled in float32: a sum of at most s² ones is exact there.
+        covered = F.avg_pool2d(self.regions.mask[None].to(torch.float32), s)[0].to(torch.float64)
         omega = _push_pull(omega * covered, covered)
         dirs = equirect_directions(w, h, torch.float64).reshape(-1, 3)
         speed = torch.linalg.norm(omega, dim=0).reshape(-1, 1)
@@ -124,9 +143,7 @@ class FlowAnimator:
 
     def velocity(self, dirs: torch.Tensor) -> torch.Tensor:
         """Velocity (N, 3) in radians per frame at unit directions (N, 3)."""
-        h, w = self._field.shape[1] - 2, self._field.shape[2] - 2
-        u, v = dir_to_equirect(dirs, w, h)
-        return _sample(self._field, u, v, 1)
+        return _grid_sample(self._field, self._grid(dirs.unbind(-1))).T
 
     # --- integration ---------------------------------------------------------------------
     def _trace_all(self) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
@@ -170,64 +187,113 @@ class FlowAnimator:
         panorama's, bit for bit. Only the blend's pixels are computed either way."""
         if not 0 <= t < self.frames:
             raise IndexError(f"frame {t} out of range for a {self.frames}-frame loop")
-        height, width = self.regions.height, self.regions.width
-        s = self.scale
-        traces = _pad_sphere(torch.cat([self._backward[t], self._forward[t]]), 1)
+        traces = self._trace_texture(t)
         ahead = t / self.frames
-        flat = self.panorama.reshape(-1, 3)
         if box is None:
-            out, shape = flat.clone(), (height, width, 3)
+            out = self.panorama.reshape(-1, 3).clone()
+            shape: tuple[int, ...] = tuple(self.panorama.shape)
+            targets = self._pixels
         else:
             cropped = box.crop(self.panorama.numpy())
             out, shape = torch.from_numpy(cropped).reshape(-1, 3), cropped.shape
+            targets = self._targets_in(box)
         blend = self.regions.blend.reshape(-1)
-        for chunk in torch.split(self._pixels, CHUNK_PIXELS):
-            u = (chunk % width).to(torch.float32) + 0.5
-            v = (chunk // width).to(torch.float32) + 0.5
-            ends = _sample(traces, u / s, v / s, 1)
-            original = flat[chunk]
-            back_dirs, front_dirs = _normalise(ends[:, :3]), _normalise(ends[:, 3:])
-            back, back_mean, back_valid = self._sample_moving(back_dirs)
-            front, front_mean, front_valid = self._sample_moving(front_dirs)
+        for pixels, grid, target in zip(
+            *(torch.split(x, CHUNK_PIXELS) for x in (self._pixels, self._trace_grid, targets)),
+            strict=True,
+        ):
+            # Channels first, (C, N), so that every step below runs on contiguous rows.
+            ends = _grid_sample(traces, grid)
+            back, back_local = self._sample_moving(ends[:3])
+            front, front_local = self._sample_moving(ends[3:6])
             # Each end counts as much as it sees moving texture (not a mountain it has
             # slid behind), within the loop's schedule 1 − t/L : t/L.
-            back_weight = (1.0 - ahead) * (back_valid + 1e-3)
-            front_weight = ahead * (front_valid + 1e-3)
+            back_weight = (1.0 - ahead) * (back_local[3:] + 1e-3)
+            front_weight = ahead * (front_local[3:] + 1e-3)
             fade = front_weight / (back_weight + front_weight)
-            # Variance-preserving cross-fade (Heitz & Neyret 2018): the local means blend
-            # linearly and the detail is rescaled to keep its contrast, so mid-loop frames
-            # are not washed out. Two samples close together (near a pole, where the flow
-            # is slow) are correlated and need less rescaling.
-            apart = torch.linalg.norm(back_dirs - front_dirs, dim=-1, keepdim=True)
-            correlation = 1.0 - smoothstep(0.0, math.radians(DECORRELATION_DEG), apart)
-            mean = (1.0 - fade) * back_mean + fade * front_mean
-            detail = (1.0 - fade) * (back - back_mean) + fade * (front - front_mean)
-            spread = (1.0 - fade) ** 2 + fade**2 + 2.0 * fade * (1.0 - fade) * correlation
-            moved = (mean + detail / spread.sqrt()).clamp(0.0, 1.0)
-            weight = blend[chunk, None]
-            target = chunk if box is None else _index_in_box(chunk, width, box)
-            out[target] = weight * moved + (1.0 - weight) * original
+            keep = 1.0 - fade
+            # Variance-preserving cross-fade (Heitz & Neyret 2018): the local means μ
+            # blend linearly and the detail c − μ is rescaled by g = 1/√spread to keep its
+            # contrast, so mid-loop frames are not washed out (``_trace_texture`` says how
+            # correlated the ends are). With an end's colour c = a + (1 − m)·μ (a the
+            # moving colour times mask m sampled there), keep·(μ_b + g·(c_b − μ_b)) +
+            # fade·(μ_f + g·(c_f − μ_f)) is μ_b·(keep − g·keep·m_b) + a_b·g·keep + the same
+            # for f: per-pixel factors first, then four multiply-adds over the colours.
+            gain = (keep.square() + fade.square() + 2.0 * fade * keep * ends[6:]).rsqrt()
+            back_gain, front_gain = gain * keep, gain * fade
+            moved = back_local[:3] * (keep - back_gain * back[3:])
+            moved.addcmul_(front_local[:3], fade - front_gain * front[3:])
+            moved.addcmul_(back[:3], back_gain).addcmul_(front[:3], front_gain)
+            # out holds the panorama there; lerp is exactly the moving colour where the
+            # blend is 1. index_select and index_copy_ rather than indexing: several
+            # times faster on these long sorted index lists.
+            weight = blend.index_select(0, pixels)[:, None]
+            mixed = torch.lerp(out.index_select(0, target), moved.clamp_(0.0, 1.0).T, weight)
+            out.index_copy_(0, target, mixed)
         return out.reshape(shape)
 
-    def _sample_moving(self, dirs: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """At directions (N, 3): the colour (N, 3) of the moving pixels there, completed by
-        the local mean where static pixels are (behind which the texture goes on), the
-        local mean (N, 3), and the fraction of moving pixels around (N, 1)."""
-        height, width = self.regions.height, self.regions.width
-        u, v = dir_to_equirect(dirs, width, height)
-        sample = _sample(self._image, u, v, 1)
-        local = _sample(self._local_mean, u / self.scale, v / self.scale, 1)
-        mean, valid = local[:, :3], local[:, 3:]
-        colour = sample[:, :3] + (1.0 - sample[:, 3:]) * mean
-        return colour, mean, valid
+    def _targets_in(self, box: FrameBox) -> torch.Tensor:
+        """Flat indices of the rendered pixels in ``box``'s crop, kept for the next frame
+        (a run asks for every frame in the same box)."""
+        if self._box_targets is None or self._box_targets[0] != box:
+            width = self.regions.width
+            rows, columns = self._pixels // width - box.top, self._pixels % width - box.left
+            self._box_targets = (box, rows * box.count + columns % width)
+        return self._box_targets[1]
+
+    def _trace_texture(self, t: int) -> torch.Tensor:
+        """Padded trace-grid texture (7, h+2, w+2) of frame t: B_t (3), F_t (3) and how
+        correlated the texture at the two ends is (1).
+
+        Two samples close together (near a pole, where the flow is slow) are correlated,
+        and the cross-fade rescales them less. The correlation is a smooth function of the
+        traces, so it is taken on the trace grid, where the traces are unit vectors, and
+        interpolated like them: no per-pixel normalisation."""
+        back, front = self._backward[t], self._forward[t]
+        apart = (back - front).square().sum(dim=0, keepdim=True).sqrt()
+        correlation = 1.0 - smoothstep(0.0, math.radians(DECORRELATION_DEG), apart)
+        return _pad_sphere(torch.cat([back, front, correlation]), 1)
+
+    def _sample_moving(self, dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """At directions (3, N), unit or not: the moving pixels' colour times mask and the
+        mask (4, N) (where static pixels are, the local mean stands in for the texture
+        behind them), and the local mean colour and fraction of moving pixels around (4, N).
+        """
+        grid = self._grid(dirs)
+        return _grid_sample(self._image, grid), _grid_sample(self._local_mean, grid)
+
+    def _grid(self, dirs: Sequence[torch.Tensor]) -> torch.Tensor:
+        """``grid_sample``'s coordinates (N, 2) of directions (x, y, z), unit or not, in
+        the trace-grid textures and in the image."""
+        x, y, z = dirs
+        # Scaled before they are interleaved: a product broadcast over a last axis of 2 is
+        # several times slower.
+        longitude = torch.atan2(-y, x).mul_(self._to_grid[0])
+        latitude = torch.atan2(z, torch.hypot(x, y)).mul_(self._to_grid[1])
+        return torch.stack([longitude, latitude], dim=-1)
 
 
 # --- helpers -----------------------------------------------------------------------------
-def _index_in_box(pixels: torch.Tensor, width: int, box: FrameBox) -> torch.Tensor:
-    """Flat indices in ``box``'s crop of flat pixel indices of the whole (·, width) image."""
-    rows = pixels // width - box.top
-    columns = (pixels % width - box.left) % width
-    return rows * box.count + columns
+def _angles_to_grid(width: int, height: int) -> tuple[float, float]:
+    """Factors from longitude φ and latitude θ (as in ``dir_to_equirect``) to
+    ``grid_sample``'s coordinates in a texture width×height padded by one pixel
+    (``_pad_sphere``): with u and v as there, 2(u + 1)/(W + 2) − 1 = φ·W/(π(W + 2)), and
+    likewise for v. Unlike there, u = W (φ = π) is not wrapped to 0: the padding holds
+    column 0 there.
+    """
+    return width / (math.pi * (width + 2)), -2.0 * height / (math.pi * (height + 2))
+
+
+def _pixel_grid(
+    rows: torch.Tensor, columns: torch.Tensor, width: int, height: int, scale: int
+) -> torch.Tensor:
+    """``grid_sample``'s coordinates (N, 2) of the centres of pixels (rows, columns) of the
+    width×height image in a trace-grid texture (width/scale × height/scale, padded by one
+    cell): 2(u/scale + 1)/(w + 2) − 1 at u = column + 1/2, and likewise for the row."""
+    w, h = width // scale, height // scale
+    u = columns * (2.0 / (scale * (w + 2))) + ((1.0 / scale + 2.0) / (w + 2) - 1.0)
+    v = rows * (2.0 / (scale * (h + 2))) + ((1.0 / scale + 2.0) / (h + 2) - 1.0)
+    return torch.stack([u, v], dim=-1)
 
 
 def _push_pull(premultiplied: torch.Tensor, coverage: torch.Tensor) -> torch.Tensor:
@@ -273,24 +339,34 @@ def _perturbation_waves(seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Te
 
 
 def _normalise(dirs: torch.Tensor) -> torch.Tensor:
-    return dirs / torch.linalg.norm(dirs, dim=-1, keepdim=True)
+    # Not torch.linalg.norm: its reduction over a last axis of 3 is many times slower.
+    return dirs * dirs.square().sum(dim=-1, keepdim=True).rsqrt()
 
 
 def _pad_sphere(texture: torch.Tensor, pad: int) -> torch.Tensor:
     """Pad an equirect texture (C, H, W) by ``pad`` pixels: columns wrap round the seam,
     rows beyond a pole continue on its far side (mirrored, half a turn round)."""
-    width = texture.shape[2]
-    top = torch.roll(torch.flip(texture[:, :pad], [1]), width // 2, dims=2)
-    bottom = torch.roll(torch.flip(texture[:, -pad:], [1]), width // 2, dims=2)
-    rows = torch.cat([top, texture, bottom], dim=1)
-    return torch.cat([rows[:, :, -pad:], rows, rows[:, :, :pad]], dim=2)
+    channels, height, width = texture.shape
+    out = texture.new_empty(channels, height + 2 * pad, width + 2 * pad)
+    out[:, pad:-pad, pad:-pad] = texture
+    _fill_sphere_border(out, pad)
+    return out
 
 
-def _sample(texture: torch.Tensor, u: torch.Tensor, v: torch.Tensor, pad: int) -> torch.Tensor:
-    """Bilinear samples (N, C) of a ``_pad_sphere``-padded texture at unpadded pixel
-    coordinates (u, v) (pixel centres at +0.5)."""
-    _, rows, cols = texture.shape
-    grid = torch.stack([2.0 * (u + pad) / cols - 1.0, 2.0 * (v + pad) / rows - 1.0], dim=-1)
+def _fill_sphere_border(texture: torch.Tensor, pad: int) -> None:
+    """Write the ``pad``-pixel border of a padded texture (C, H + 2·pad, W + 2·pad) from
+    its inside, as ``_pad_sphere`` describes."""
+    inside = texture[:, pad:-pad, pad:-pad]
+    width = inside.shape[2]
+    texture[:, :pad, pad:-pad] = torch.roll(torch.flip(inside[:, :pad], [1]), width // 2, dims=2)
+    texture[:, -pad:, pad:-pad] = torch.roll(torch.flip(inside[:, -pad:], [1]), width // 2, dims=2)
+    texture[:, :, :pad] = texture[:, :, width : width + pad]
+    texture[:, :, -pad:] = texture[:, :, pad : 2 * pad]
+
+
+def _grid_sample(texture: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (C, N) of a texture (C, rows, cols) at ``grid_sample``'s
+    coordinates (N, 2) in [−1, 1]."""
     out = F.grid_sample(
         texture[None],
         grid.view(1, 1, -1, 2).to(texture.dtype),
@@ -298,4 +374,4 @@ def _sample(texture: torch.Tensor, u: torch.Tensor, v: torch.Tensor, pad: int) -
         padding_mode="border",
         align_corners=False,
     )
-    return out[0, :, 0].T
+    return out[0, :, 0]

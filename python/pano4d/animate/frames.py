@@ -264,10 +264,13 @@ class WholeFrames:
 
 
 def open_frames(folder: Path, count: int, suffix: str) -> FrameStore | WholeFrames:
-    """The frames in ``folder``: a ``FrameStore`` where it holds a box.json, else whole
-    frames."""
-    if (Path(folder) / BOX_NAME).is_file():
-        return FrameStore(folder, count, suffix)
+    """The frames in ``folder``: a ``FrameStore`` where it holds a box.json (in the format
+    of its static panorama: a working-size store is EXR whatever the input), else whole
+    frames in ``suffix``'s format."""
+    folder = Path(folder)
+    if (folder / BOX_NAME).is_file():
+        held = [s for s in (".exr", ".png") if (folder / f"{STATIC_NAME}{s}").is_file()]
+        return FrameStore(folder, count, held[0] if held else suffix)
     return WholeFrames(folder, count, suffix)
 
 

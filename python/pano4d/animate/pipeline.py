@@ -1,4 +1,4 @@
-"""The animating phase as one resumable step: ``run_animate(cfg)`` (``pano4d animate``).
+"""The animating phase as one resumable step: ``run_animate(cfg, size)`` (``pano4d animate``).
 
 Reads the panorama and the regions, runs the configured backend (``flow``: the embedded
 cinemagraph animator; ``svd``: the Panoramic Denoiser with a diffusers model), copies the
@@ -13,6 +13,14 @@ and writes (docs/design.md, "Files a run writes")::
     output/animate/metrics.json        pano4d.metrics.animate_metrics of the frames, and
                                        the backend's own (svd: how it batched the UNet)
     output/animate/done.json           the inputs' hash: a finished run is skipped
+
+That is the full-resolution store (``pano4d animate``, ``--frames-out``, ``pano4d eval``).
+With ``size`` (w, h) smaller than the panorama, as ``pano4d train`` and ``pano4d views``
+ask for the working panorama the lifting reads, the phase animates the input
+area-downsampled once to that size (``animation_input``: prepare's filter; the regions
+too, each keeping at least one pixel) and keeps the same files in a store of its own,
+``output/animate/WxH/`` (frames as 32-bit float EXR, so the lifting reads exactly what was
+made). Neither store invalidates the other; at the panorama's own size they are one.
 
 Nothing outside the box is computed or written per frame: the flow backend warps only
 the blend's pixels (``FlowAnimator.frame(t, box)``). Every file is written atomically.
@@ -40,14 +48,18 @@ import torch.nn.functional as F
 from rich.console import Console
 from rich.table import Table
 
-from pano4d.animate.frames import FrameBox, FrameStore, frame_suffix
+from pano4d.animate.frames import FrameBox, FrameStore, area_resize, frame_suffix
 from pano4d.config import SceneConfig, config_hash
 from pano4d.errors import InputError
 from pano4d.fsutil import write_json_atomic
-from pano4d.images import read_panorama, write_video
+from pano4d.images import image_size, read_panorama, write_video
 from pano4d.metrics import VideoMetrics
 from pano4d.progress import Bars
-from pano4d.regions import Regions, build_regions
+from pano4d.regions import Regions, build_regions, moving_mask
+
+# A working-size store keeps its frames as 32-bit float EXR: what the lifting reads is
+# exactly what the animator made (a 16-bit PNG would round it).
+WORKING_SUFFIX = ".exr"
 
 PREVIEW_MAX_WIDTH = 2048
 
@@ -69,29 +81,66 @@ class AnimateResult:
     resumed_at: int  # the first frame this run made (the frame count when none was missing)
 
 
-def animate_folder(cfg: SceneConfig) -> Path:
-    return Path(cfg.output) / "animate"
+def store_size(cfg: SceneConfig, size: tuple[int, int] | None) -> tuple[int, int] | None:
+    """``size`` (w, h) when it is smaller than the panorama, None for the panorama's own
+    size (the full-resolution store)."""
+    if size is None or size == image_size(cfg.panorama):
+        return None
+    return size
 
 
-def frame_store(cfg: SceneConfig) -> FrameStore:
-    """Where ``run_animate`` keeps the frames of ``cfg``."""
-    return FrameStore(
-        animate_folder(cfg) / "moving", cfg.animate.frames, frame_suffix(cfg.panorama)
-    )
+def animate_folder(cfg: SceneConfig, size: tuple[int, int] | None = None) -> Path:
+    """output/animate for the panorama's own size, output/animate/WxH for a smaller one."""
+    folder = Path(cfg.output) / "animate"
+    at = store_size(cfg, size)
+    return folder if at is None else folder / f"{at[0]}x{at[1]}"
+
+
+def frame_store(cfg: SceneConfig, size: tuple[int, int] | None = None) -> FrameStore:
+    """Where ``run_animate`` keeps the frames of ``cfg`` at ``size``."""
+    suffix = frame_suffix(cfg.panorama) if store_size(cfg, size) is None else WORKING_SUFFIX
+    return FrameStore(animate_folder(cfg, size) / "moving", cfg.animate.frames, suffix)
+
+
+@dataclass(frozen=True)
+class AnimationInput:
+    """What an animation is made from, at the size it is made at."""
+
+    full: np.ndarray  # (H, W, 3) the panorama as read
+    panorama: np.ndarray  # (h, w, 3) the panorama at the animation's size
+    regions: Regions  # the regions at that size
+
+
+def animation_input(cfg: SceneConfig, size: tuple[int, int] | None = None) -> AnimationInput:
+    """The panorama and its regions at ``size`` (w, h; None: the panorama's own): the input
+    area-downsampled once with the filter the lifting's ``prepare`` uses, and the regions
+    on it (``regions.masks_at_size``: a region covering any input pixel keeps a pixel)."""
+    full = read_panorama(cfg.panorama)
+    height, width = full.shape[:2]
+    regions = build_regions(cfg, width, height, size)
+    if size is None or size == (width, height):
+        return AnimationInput(full, full, regions)
+    panorama = area_resize(torch.from_numpy(full), size).numpy()
+    return AnimationInput(full, panorama, regions)
 
 
 def run_animate(
-    cfg: SceneConfig, progress: bool = True, on_step: Callable[[str, int], None] | None = None
+    cfg: SceneConfig,
+    size: tuple[int, int] | None = None,
+    progress: bool = True,
+    on_step: Callable[[str, int], None] | None = None,
 ) -> AnimateResult:
-    """Run (or resume, or skip) the animating phase of ``cfg``; see the module docstring.
-    ``on_step("animate", t)`` is called when frame t is written."""
+    """Run (or resume, or skip) the animating phase of ``cfg`` at ``size`` (w, h; None: the
+    panorama's own); see the module docstring. ``on_step("animate", t)`` is called when
+    frame t is written."""
     started = time.perf_counter()
     console = Console(stderr=True, quiet=not progress)
-    folder = animate_folder(cfg)
-    store = frame_store(cfg)
+    size = store_size(cfg, size)
+    folder = animate_folder(cfg, size)
+    store = frame_store(cfg, size)
     count = cfg.animate.frames
     video = folder / "video.mp4"
-    key = inputs_hash(cfg)
+    key = inputs_hash(cfg, size)
 
     done = _read_json(folder / "done.json")
     if done.get("inputs_hash") == key and store.complete() and video.is_file():
@@ -103,9 +152,8 @@ def run_animate(
 
     # Bad input (the panorama, the regions, the backend's weights) fails here, before
     # anything of an earlier run is deleted.
-    panorama = read_panorama(cfg.panorama)
-    height, width = panorama.shape[:2]
-    regions = build_regions(cfg, width, height)
+    source = animation_input(cfg, size)
+    panorama, regions = source.panorama, source.regions
     box = FrameBox.around(regions.blend > 0)
     run: dict[str, Any] = {"inputs_hash": key, "config_hash": config_hash(cfg)}
     previous = _read_json(folder / "run.json")
@@ -113,7 +161,7 @@ def run_animate(
     missing = [t for t, p in enumerate(store.paths) if stale or not p.is_file()]
     render = None
     if missing:
-        render, run["backend"] = _backend(cfg, panorama, regions, box)
+        render, run["backend"] = frame_renderer(cfg, source, box)
     elif "backend" in previous:
         run["backend"] = previous["backend"]  # what made the frames kept
 
@@ -168,11 +216,13 @@ def _same_box(store: FrameStore, box: FrameBox) -> bool:
         return False
 
 
-def progress(cfg: SceneConfig) -> Literal["done", "started"] | None:
-    """How far the phase got in ``cfg``'s output folder: "done" (done.json, which a rerun
-    checks against its inputs), "started" (frames written, not all: in the frame store, or
-    whole frames put there by hand), or None (nothing)."""
-    folder = animate_folder(cfg)
+def progress(
+    cfg: SceneConfig, size: tuple[int, int] | None = None
+) -> Literal["done", "started"] | None:
+    """How far the phase at ``size`` got in ``cfg``'s output folder: "done" (done.json,
+    which a rerun checks against its inputs), "started" (frames written, not all: in the
+    frame store, or whole frames put there by hand), or None (nothing)."""
+    folder = animate_folder(cfg, size)
     if (folder / "done.json").is_file():
         return "done"
     if any((folder / "moving").glob("*")) or any((folder / "frames").glob("*")):
@@ -180,9 +230,10 @@ def progress(cfg: SceneConfig) -> Literal["done", "started"] | None:
     return None
 
 
-def inputs_hash(cfg: SceneConfig) -> str:
-    """sha256 of what the frames depend on: the animate settings, regions and seed, and the
-    bytes of the panorama and of every mask file."""
+def inputs_hash(cfg: SceneConfig, size: tuple[int, int] | None = None) -> str:
+    """sha256 of what the frames depend on: the animate settings, regions and seed, the
+    size they are made at (None: the panorama's own), and the bytes of the panorama and of
+    every mask file."""
     digest = hashlib.sha256()
     settings = {
         "panorama": str(cfg.panorama),
@@ -190,6 +241,8 @@ def inputs_hash(cfg: SceneConfig) -> str:
         "animate": cfg.animate.model_dump(mode="json"),
         "seed": cfg.seed,
     }
+    if size is not None:  # the full-resolution store's hash is what it was before sizes
+        settings["size"] = list(size)
     digest.update(json.dumps(settings, sort_keys=True).encode())
     files = [Path(cfg.panorama)] + [Path(r.mask) for r in cfg.regions if r.mask is not None]
     for path in files:
@@ -213,15 +266,18 @@ def enforce_static(
 
 
 # --- backends ----------------------------------------------------------------------------
-def _backend(
-    cfg: SceneConfig, panorama: np.ndarray, regions: Regions, box: FrameBox
+def frame_renderer(
+    cfg: SceneConfig, source: AnimationInput, box: FrameBox | None
 ) -> tuple[Callable[[int], np.ndarray | torch.Tensor], dict[str, Any]]:
-    """A function from frame index to the frame's pixels in ``box`` for the configured
-    backend, and what the backend reports for the metrics (svd: how it batched the UNet)."""
+    """A function from frame index to the frame's pixels at ``source``'s size (in ``box``,
+    or whole for None) for the configured backend, and what the backend reports for the
+    metrics (svd: how it batched the UNet)."""
+    crop = (lambda image: image) if box is None else box.crop
     if cfg.animate.backend == "flow":
         from pano4d.animate.flow import FlowAnimator
 
-        animator = FlowAnimator(torch.from_numpy(panorama), regions, cfg.animate.frames, cfg.seed)
+        panorama = torch.from_numpy(source.panorama)
+        animator = FlowAnimator(panorama, source.regions, cfg.animate.frames, cfg.seed)
         return lambda t: animator.frame(t, box), {}
     if cfg.animate.backend == "svd":
         weights = cfg.animate.weights
@@ -231,20 +287,30 @@ def _backend(
                 f"got {weights} (not found)"
             )
         try:
-            from pano4d.animate.svd import AttentionLimitError, animate_svd
+            from pano4d.animate.svd import AttentionLimitError, OutputFrames, animate_svd
         except ImportError as error:
             raise AnimateError(
                 f"backend 'svd' is not available in this installation ({error}); use backend: flow"
             ) from error
+        height, width = source.full.shape[:2]
+        at_full_size = source.panorama is source.full
+        # The UNet's views come from the input at its own resolution; the video is decoded
+        # and blended at the animation's size.
+        full_mask = source.regions.mask if at_full_size else moving_mask(cfg, width, height)
+        output = OutputFrames(
+            torch.from_numpy(source.panorama).permute(2, 0, 1), source.regions.blend
+        )
         try:
-            made = animate_svd(cfg, torch.from_numpy(panorama).permute(2, 0, 1), regions.mask)
+            made = animate_svd(
+                cfg, torch.from_numpy(source.full).permute(2, 0, 1), full_mask, output=output
+            )
         except AttentionLimitError as error:
             raise AnimateError(str(error)) from error
         video = made.video
-        expected = (cfg.animate.frames, 3, *panorama.shape[:2])
+        expected = (cfg.animate.frames, 3, *source.panorama.shape[:2])
         if tuple(video.shape) != expected:
             raise AnimateError(f"backend 'svd' returned {tuple(video.shape)}, expected {expected}")
-        return lambda t: box.crop(video[t].permute(1, 2, 0).float().cpu().numpy()), made.batching
+        return lambda t: crop(video[t].permute(1, 2, 0).float().cpu().numpy()), made.batching
     raise AnimateError(f"unknown animate backend {cfg.animate.backend!r}")
 
 

@@ -451,28 +451,46 @@ def prepare_panorama(
     )
 
 
-def decode_panorama(model: SVDDenoiser, setup: PanoramaSetup, signal: torch.Tensor) -> torch.Tensor:
-    """The sphere latent video (L, c, N) → equirect video (L, 3, H, W) on the host, decoded
-    in tiles; where no active view sees, the decoder gets the input's own latent."""
-    height, width = setup.static_grid.shape[-2:]
-    dirs = equirect_directions(width, height, torch.float64)
+def decode_panorama(
+    model: SVDDenoiser, setup: PanoramaSetup, signal: torch.Tensor, size: tuple[int, int]
+) -> torch.Tensor:
+    """The sphere latent video (L, c, N) → equirect video (L, 3, h, w) of ``size`` (w, h) on
+    the host, decoded in tiles from a latent grid of the size's cells (so a smaller size
+    decodes fewer tiles); where no active view sees, the decoder gets the input's own
+    latent."""
+    width, height = size
+    s = model.scale_factor
+    grid_h, grid_w = -(-height // s), -(-width // s)
+    grid_w += grid_w % 2  # an equirect grid has an even width
+    dirs = equirect_directions(grid_w, grid_h, torch.float64)
     latent = sphere_sampler(dirs, setup.ico).to(signal.device).apply(signal).cpu()
     seen = views_seeing(setup.latent_views, dirs).any(dim=0)
-    latent = torch.where(seen, latent, setup.static_grid)
-    return tiled_equirect(
-        lambda z: model.decode(z[None])[0],
-        latent,
-        up=model.scale_factor,
-        tile=DECODE_TILE,
-        overlap=DECODE_OVERLAP,
+    static = setup.static_grid
+    if static.shape[-2:] != (grid_h, grid_w):
+        static = F.interpolate(static[None], size=(grid_h, grid_w), mode="area")[0]
+    latent = torch.where(seen, latent, static)
+    video = tiled_equirect(
+        lambda z: model.decode(z[None])[0], latent, up=s, tile=DECODE_TILE, overlap=DECODE_OVERLAP
     )
+    if video.shape[-2:] != (height, width):
+        video = F.interpolate(video, size=(height, width), mode="area")
+    return video
+
+
+@dataclass
+class OutputFrames:
+    """The size a video is written at: the panorama there (3, h, w) and the regions' soft
+    blend weight there (h, w)."""
+
+    panorama: torch.Tensor
+    blend: torch.Tensor
 
 
 @dataclass
 class SVDVideo:
     """What ``animate_svd`` made, and how it batched the UNet."""
 
-    video: torch.Tensor  # (L, 3, H, W) float32
+    video: torch.Tensor  # (L, 3, h, w) float32
     batching: dict[str, int]  # for the animate metrics (svd_* keys)
 
 
@@ -482,12 +500,15 @@ def animate_svd(
     moving: torch.Tensor,
     progress: bool = True,
     model: SVDDenoiser | None = None,
+    output: OutputFrames | None = None,
 ) -> SVDVideo:
     """Animate ``panorama`` (3, H, W) float32 inside ``moving`` (H, W) bool with SVD.
 
-    The video is (L, 3, H, W) float32: the decoded video blended into the input with the
-    regions' soft weight, so every pixel outside ``moving`` equals the input exactly.
-    ``model`` skips loading (tests pass one already loaded).
+    The video is (L, 3, h, w) float32 at ``output``'s size (default: the input's own): the
+    decoded video blended into ``output.panorama`` with ``output.blend``, so every pixel
+    outside the blend equals that panorama exactly. The UNet's views are cut from the
+    input at its own resolution whatever the output's size. ``model`` skips loading (tests
+    pass one already loaded).
     """
     settings = cfg.animate
     if model is None:
@@ -511,8 +532,10 @@ def animate_svd(
         times = ", ".join(f"{k} {v:.2f}s" for k, v in report.seconds.items())
         log(f"svd step {i + 1}/{settings.steps}: {times}; views disagree by "
             f"{report.disagreement:.4f} before fusion")  # fmt: skip
-    video = decode_panorama(model, setup, signal)
-    blend = blend_weight(moving, settings.border_px)
+    if output is None:
+        output = OutputFrames(panorama, blend_weight(moving, settings.border_px))
+    target, blend = output.panorama, output.blend
+    video = decode_panorama(model, setup, signal, (target.shape[2], target.shape[1]))
     calls = model.unet_call_rows[calls_before:]
     batching = {
         "svd_active_views": len(setup.active),
@@ -522,5 +545,5 @@ def animate_svd(
         "svd_unet_batch": max(calls),
         "svd_unet_calls": len(calls),
     }
-    blended = torch.where(blend > 0, torch.lerp(panorama[None], video, blend), panorama[None])
+    blended = torch.where(blend > 0, torch.lerp(target[None], video, blend), target[None])
     return SVDVideo(blended, batching)

@@ -36,11 +36,12 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from pano4d.animate.frames import frame_suffix, open_frames
+from pano4d.animate.frames import WholeFrames, frame_suffix, open_frames
 from pano4d.camera import Camera
 from pano4d.config import OptimisationKnobs, PresetKnobs, SceneConfig
 from pano4d.device import resolve_device
 from pano4d.gaussians import Gaussians
+from pano4d.images import image_size
 from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.convergence import StopRule
@@ -124,11 +125,39 @@ def working_size(width: int, view_size: int, fov_deg: float) -> tuple[int, int]:
     return w, w // 2
 
 
-def read_frames(folder: Path, count: int, size: tuple[int, int], suffix: str) -> torch.Tensor:
-    """The animation frames in ``folder`` (the animating phase's store or whole frames put
-    there by hand: ``animate.frames.open_frames``) as (L, H, W, 3) area-downsampled to
-    ``size`` (W, H)."""
-    return open_frames(folder, count, suffix).area_downsampled(size)
+def working_panorama(cfg: SceneConfig) -> tuple[PresetKnobs, tuple[int, int]]:
+    """The preset's knobs and the working panorama's size (W, H) for ``cfg``, both from the
+    input panorama's size (never from the frames', which may be the working size itself)."""
+    input_width = image_size(cfg.panorama)[0]
+    knobs = cfg.resolved_preset(input_width)
+    return knobs, working_size(input_width, knobs.view_size, cfg.lift.fov_deg)
+
+
+def animation_frames(
+    cfg: SceneConfig, checkpoints: Checkpoints, progress: bool, on_step: StepHook | None
+) -> Path:
+    """The folder of the animation's frames the lifting reads, after running the animating
+    phase at the working panorama's size if needed (its own store: ``run_animate(cfg,
+    size)``; it skips when its inputs are unchanged).
+
+    A complete set of whole frames put in output/animate/frames by hand, with no record of
+    the animating phase beside it, is used as is (``prepare`` downsamples it)."""
+    out = Path(cfg.output)
+    frames_dir = out / "animate" / "frames"
+    suffix = frame_suffix(cfg.panorama)
+    recorded = (out / "animate" / "done.json").is_file()
+    if recorded or not WholeFrames(frames_dir, cfg.animate.frames, suffix).complete():
+        from pano4d.animate.pipeline import run_animate
+
+        size = working_panorama(cfg)[1]
+        animated = run_animate(cfg, size, progress=progress, on_step=on_step)
+        checkpoints.resumed("animate", frame=animated.resumed_at)
+        frames_dir = animated.store.folder
+        if not animated.store.complete():
+            raise TrainError(
+                f"{frames_dir}: the animating phase did not write {cfg.animate.frames} frames"
+            )
+    return frames_dir
 
 
 def moving_region(
@@ -146,12 +175,15 @@ def moving_region(
 def prepare(
     cfg: SceneConfig, frames_dir: Path, render_backend: str, trainer: str
 ) -> LiftInputs:
-    """The frames at the working resolution and what moves in them (``moving_region``)."""
+    """The frames at the working resolution and what moves in them (``moving_region``).
+
+    ``frames_dir`` holds the animating phase's frames at any size (``animation_frames``:
+    the working size itself, or whole frames put there by hand), area-downsampled here to
+    the working size (``animate.frames.open_frames``)."""
+    full_w, full_h = image_size(cfg.panorama)
+    knobs, size = working_panorama(cfg)
     suffix = frame_suffix(cfg.panorama)
-    full_w, full_h = open_frames(frames_dir, cfg.animate.frames, suffix).size()
-    knobs = cfg.resolved_preset(full_w)
-    size = working_size(full_w, knobs.view_size, cfg.lift.fov_deg)
-    frames = read_frames(frames_dir, cfg.animate.frames, size, suffix)
+    frames = open_frames(frames_dir, cfg.animate.frames, suffix).area_downsampled(size)
     return LiftInputs(
         cfg=cfg,
         knobs=knobs,

@@ -43,7 +43,13 @@ from pano4d.fsutil import atomic_path, write_json_atomic, write_text_atomic
 from pano4d.gaussians import SH_C0, Gaussians
 from pano4d.images import write_image
 from pano4d.lift.checkpoints import Checkpoints
-from pano4d.lift.pipeline import align_depth, estimate_depth, initial_sets, prepare
+from pano4d.lift.pipeline import (
+    align_depth,
+    animation_frames,
+    estimate_depth,
+    initial_sets,
+    prepare,
+)
 from pano4d.progress import Bars
 from pano4d.resample import equirect_to_perspective
 
@@ -88,8 +94,6 @@ def rotation_to_quaternion(R: torch.Tensor) -> list[float]:
 
 def export_views(cfg: SceneConfig, out: Path, time: int = 0, progress: bool = True) -> ViewsDataset:
     """Write the views of timestamp ``time`` of ``cfg``'s animation to ``out`` (module doc)."""
-    from pano4d.train import animation_frames
-
     frames = cfg.animate.frames
     if not 0 <= time < frames:
         raise InputError(f"--time {time}: the animation has frames 0..{frames - 1}")
