@@ -4,9 +4,10 @@ large panoramas, this tree against a base commit, side by side in one run.
 Cases: the lake (``shared/data/pano_lake.jpg``) resampled to 6144×3072 and 8192×4096
 (bicubic, made once into bench/out/stand-ins/), a box over its water and sky (≈ 40 % of the
 sphere moving with the 3° margin), draft, 14 frames, the ``flow`` animator. Variants:
-``base``, a commit's python/ exported with this checkout's compiled extension (the issue's
-code touches no Rust), and ``after``, this tree's python/; each command runs in its own
-process, one variant after the other, nothing else running.
+``base`` and ``after``, two commits' python/ exported with this checkout's compiled
+extension (the issue's code touches no Rust; edits made while the bench runs do not leak
+in); each command runs in its own process, one variant after the other, nothing else
+running.
 
 Per case and variant:
 * ``pano4d train``: wall time, peak memory (``/usr/bin/time``'s maximum resident set),
@@ -21,7 +22,7 @@ Then the frames, as the issue's targets read them:
   outside the blend, PSNR of the moving region in every frame.
 Prints a table and writes bench/out/working_frames.json.
 
-    .venv/bin/python bench/working_frames.py [--base fbdcae1] [--widths 6144 8192]
+    .venv/bin/python bench/working_frames.py [--base fbdcae1] [--after HEAD] [--widths 6144 8192]
         [--frames 14] [--animate]
 """
 
@@ -163,6 +164,7 @@ def full_against_full(base_out: Path, after_out: Path, cfg_yaml: Path) -> dict[s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--base", default="fbdcae1")
+    parser.add_argument("--after", default="HEAD")
     parser.add_argument("--widths", type=int, nargs="+", default=[6144, 8192])
     parser.add_argument("--frames", type=int, default=14)
     parser.add_argument("--animate", action="store_true", help="also `pano4d animate` alone")
@@ -170,7 +172,11 @@ def main() -> None:
     args = parser.parse_args()
 
     work = Path(tempfile.mkdtemp(prefix="working-frames-", dir=ROOT / "bench" / "out"))
-    variants = {"base": commit_sources(args.base, work), "after": ROOT / "python"}
+    after = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short", args.after],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    variants = {"base": commit_sources(args.base, work), "after": commit_sources(after, work)}
     rows: list[dict[str, Any]] = []
     print(
         f"{'case':>10} {'variant':>7} {'command':>8} {'wall s':>7} {'peak GB':>8} "
@@ -250,6 +256,7 @@ def main() -> None:
         "date": time.strftime("%Y-%m-%d %H:%M"),
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
         "base": args.base,
+        "after": after,
         "frames": args.frames,
         "rows": rows,
         "frames_compared": comparisons,
