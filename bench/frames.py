@@ -8,7 +8,8 @@ synthetic kinds, where the true animation feeds the lifting (as bench/quality.py
 the moving region's PSNR in every frame against ground truth: four cameras a frame,
 displaced by 1 % of the median scene depth and looking at what moves, ray-cast by the
 scene's own world, PSNR over the pixels that see something moving. The lake (no ground
-truth) is timed with the real animator.
+truth) is timed with the real animator; with ``--flow`` the synthetic kinds are animated by
+it too (frame 0 under the kind's mask), to compare two animating paths on the same truth.
 
 Variants: ``after`` is this tree; ``--base REV`` adds ``before``, REV's code in a git
 worktree under bench/out/frames/ (its own extension built there when REV's Rust differs);
@@ -72,16 +73,20 @@ def train_case(case: dict[str, Any]) -> None:
     update: dict[str, Any] = {"preset": case["preset"], "output": output}
     if case["overrides"]:
         update["overrides"] = case["overrides"]
+    animate = {"frames": case["frames"]}
     if case["kind"] != "lake":
         root = Path(case["scene"]).parent
-        frames = sorted((root / "gt" / "frames").glob("*.png"))[: case["frames"]]
-        (output / "animate" / "frames").mkdir(parents=True)
-        for f in frames:
-            shutil.copy(f, output / "animate" / "frames" / f.name)
+        if case.get("flow"):  # the flow animator on frame 0 under the kind's mask
+            animate["backend"] = "flow"
+        else:  # the true animation
+            frames = sorted((root / "gt" / "frames").glob("*.png"))[: case["frames"]]
+            (output / "animate" / "frames").mkdir(parents=True)
+            for f in frames:
+                shutil.copy(f, output / "animate" / "frames" / f.name)
         update["depth"] = cfg.depth.model_copy(
             update={"backend": "file", "path": root / "depth.exr"}
         )
-    update["animate"] = cfg.animate.model_copy(update={"frames": case["frames"]})
+    update["animate"] = cfg.animate.model_copy(update=animate)
     run_train(cfg.model_copy(update=update), progress=False)
 
 
@@ -201,8 +206,11 @@ def moving_share(scene_yaml: Path, output: Path) -> float:
     return float(np.mean(shares)) if shares else 0.0
 
 
-def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
-    """Per frame: PSNR over the moving pixels of CAMERAS_PER_FRAME ground-truth views."""
+def region_psnr(
+    kind: str, seed: int, frames: int, output: Path
+) -> tuple[list[float], list[float]]:
+    """Per frame: PSNR over the moving pixels of CAMERAS_PER_FRAME ground-truth views, and
+    over the static pixels of the same views."""
     from pano4d import ply4d
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
@@ -218,9 +226,9 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
     # Directions that see what moves: the moving pixels of a small panorama.
     dirs = equirect_directions(256, 128).view(-1, 3)
     moving_dirs = dirs[world.moves(world.cast(torch.zeros(3), dirs).label)]
-    out = []
+    out, still = [], []
     for t in range(frames):
-        values = []
+        values, static_values = [], []
         for _ in range(CAMERAS_PER_FRAME):
             forward = moving_dirs[int(torch.randint(len(moving_dirs), (), generator=gen))]
             offset = torch.nn.functional.normalize(torch.randn(3, generator=gen), dim=0)
@@ -235,8 +243,11 @@ def moving_psnr(kind: str, seed: int, frames: int, output: Path) -> list[float]:
                 rgb = render(scene.at(t), cam).rgb.clamp(0, 1).cpu()
             if moves.any():
                 values.append(psnr(rgb[moves], truth[moves]))
+            if not moves.all():
+                static_values.append(psnr(rgb[~moves], truth[~moves]))
         out.append(float(np.mean(values)) if values else math.nan)
-    return out
+        still.append(float(np.mean(static_values)) if static_values else math.nan)
+    return out, still
 
 
 def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any]:
@@ -269,7 +280,9 @@ def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any
         "gaussians": metrics["gaussians"],
     }
     if case["kind"] != "lake":
-        row["moving_psnr"] = moving_psnr(case["kind"], case["seed"], case["frames"], output)
+        row["moving_psnr"], row["static_psnr"] = region_psnr(
+            case["kind"], case["seed"], case["frames"], output
+        )
     return row
 
 
@@ -335,7 +348,8 @@ def cases(args: argparse.Namespace) -> list[dict[str, Any]]:
     for kind in args.kinds:
         for frames in args.frames:
             scene = synth_scene(kind, args.width, max(args.frames), args.seed)
-            out.append({"name": f"{kind} {args.preset} w{args.width} L{frames}", "kind": kind,
+            name = f"{kind} {args.preset} w{args.width} L{frames}{' flow' if args.flow else ''}"
+            out.append({"name": name, "kind": kind, "flow": args.flow,
                         "scene": str(scene), "preset": args.preset, "frames": frames,
                         "seed": args.seed, "overrides": overrides})  # fmt: skip
     if args.balanced_step:
@@ -364,6 +378,9 @@ def main() -> None:
     parser.add_argument("--preset", default="draft")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--lake", action="store_true", help="also the lake (real animator)")
+    parser.add_argument("--flow", action="store_true",
+                        help="synthetic kinds animated by flow from frame 0 under their mask "
+                        "(moving-region PSNR then against a truth flow does not make)")  # fmt: skip
     parser.add_argument("--balanced-step", type=int, default=0, metavar="L")
     parser.add_argument("--balanced-iterations", type=int, default=100)
     parser.add_argument("--overrides", default="", help="JSON object of preset knobs")
@@ -398,16 +415,17 @@ def main() -> None:
 
 HEADER = (f"{'case':<40}{'variant':>8}{'static s':>9}{'dyn s':>8}{'dyn/st':>7}"
           f"{'steps st':>9}{'steps dyn':>10}{'step x':>7}{'moving':>7}{'window':>7}"
-          f"{'PSNR mv':>8}")  # fmt: skip
+          f"{'PSNR mv':>8}{'PSNR st':>8}")  # fmt: skip
 
 
 def print_row(r: dict[str, Any]) -> None:
     psnr = float(np.nanmean(r["moving_psnr"])) if r.get("moving_psnr") else math.nan
+    still = float(np.nanmean(r["static_psnr"])) if r.get("static_psnr") else math.nan
     print(f"{r['case']:<40}{r['variant']:>8}{r['timings_s']['static']:>9.1f}"
           f"{r['timings_s']['dynamic']:>8.1f}{r['dynamic_over_static']:>7.2f}"
           f"{r['steps']['static']:>9}{r['steps']['dynamic']:>10}"
           f"{r['step_ratio'] or math.nan:>7.2f}{r['moving_share']:>7.2f}"
-          f"{r.get('window_share', 1.0):>7.2f}{psnr:>8.2f}",
+          f"{r.get('window_share', 1.0):>7.2f}{psnr:>8.2f}{still:>8.2f}",
           flush=True)  # fmt: skip
 
 

@@ -45,6 +45,9 @@ import torch.nn.functional as F
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "python"))
 
+# A commit's python/ with this checkout's extension (bench/animate_frames.py's helper).
+from animate_frames import commit_sources  # noqa: E402
+
 from pano4d.animate.frames import FrameStore  # noqa: E402
 from pano4d.animate.pipeline import animation_input  # noqa: E402
 from pano4d.config import load_config  # noqa: E402
@@ -80,20 +83,6 @@ def scene(folder: Path, width: int, frames: int) -> Path:
         f"animate: {{backend: flow, frames: {frames}}}\npreset: draft\noutput: out\n"
     )
     return path
-
-
-def commit_sources(commit: str, into: Path) -> Path:
-    """A commit's python/ tree with this checkout's compiled extension."""
-    target = into / f"sources-{commit}"
-    if not (target / "python" / "pano4d").is_dir():
-        target.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", commit, "python"], check=True, capture_output=True
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", str(target)], input=archive, check=True)
-        for so in (ROOT / "python" / "pano4d").glob("_core*.so"):
-            (target / "python" / "pano4d" / so.name).write_bytes(so.read_bytes())
-    return target / "python"
 
 
 def timed(sources: Path, folder: Path, *args: str) -> dict[str, Any]:

@@ -208,14 +208,18 @@ def test_working_size_frames_match_the_full_resolution_frames_downsampled(
 
 
 def test_a_region_smaller_than_a_working_pixel_keeps_one(tmp_path: Path) -> None:
-    """A box of a few input pixels at the north pole covers no working pixel by half: it is
-    grown to its most-covered working pixel (the editor preview's rule) and animates; a box
-    between pixel centres covers no input pixel and is refused with one line naming it."""
+    """A box of a few input pixels at the north pole keeps a blend weight above 0 at the
+    input's size (the distance field near a pole pools columns), and covers no working pixel
+    by half: it is grown to its most-covered working pixel (the editor preview's rule) and
+    animates; a box between pixel centres covers no input pixel and is refused with one line
+    naming it."""
     from pano4d.regions import RegionError
 
     cfg = across_the_seam(tmp_path)
     tiny = cfg.regions[0].model_copy(update={"box": [100.0, 0.0, 103.0, 2.0]})
     cfg = cfg.model_copy(update={"regions": [tiny]})
+    full = build_regions(cfg, WIDTH, HEIGHT)  # at the input's size every pixel moves too
+    assert int(full.mask.sum()) == 6 and bool((full.blend[full.mask] > 0).all())
     source = pipeline.animation_input(cfg, (64, 32))
     assert int(source.regions.mask.sum()) == 1 and float(source.regions.blend.max()) > 0
     result = run_animate(cfg, (64, 32), progress=False)

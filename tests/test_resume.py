@@ -64,7 +64,11 @@ def assert_same_scene(a: Path, b: Path) -> None:
     assert len(frames) > 2, "the frame store: static.exr, box.json and the frames"
     for frame in frames:
         other = b / frame.relative_to(a)
-        assert frame.read_bytes() == other.read_bytes(), frame.name
+        if frame.suffix == ".exr":  # its header carries the time it was written (capDate)
+            mine, theirs = read_image(frame), read_image(other)
+            assert mine.tobytes() == theirs.tobytes(), frame.name
+        else:
+            assert frame.read_bytes() == other.read_bytes(), frame.name
 
 
 @pytest.fixture(scope="module")
