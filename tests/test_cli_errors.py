@@ -45,10 +45,13 @@ def restored(folder: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny scene and everything `pano4d train` writes for it, and a copy of it all."""
+    """A tiny scene and everything `pano4d train` writes for it (its frames at the working
+    size), its full-resolution animation (`pano4d animate`), and a copy of it all."""
     folder = tmp_path_factory.mktemp("cli") / "scene"
     tiny_scene(folder, frames=2)
     train_in_place(folder)
+    animated = pano4d("animate", folder / "scene.yaml")
+    assert animated.returncode == 0, animated.stderr
     shutil.copytree(folder, folder.with_name("pristine"))
     return folder
 
@@ -72,6 +75,12 @@ def box_outside_the_image(folder: Path) -> None:
 
 def broken_frame(folder: Path) -> None:
     (folder / "output" / "animate" / "moving" / "0001.png").write_bytes(b"\x89PNG not a png")
+
+
+def broken_working_frame(folder: Path) -> None:
+    """A broken frame of the store `pano4d train` reads (output/animate/WxH/moving)."""
+    (frame,) = (folder / "output" / "animate").glob("*x*/moving/0001.exr")
+    frame.write_bytes(b"v/1\x01 not an exr")
 
 
 def broken_frame_of_a_killed_run(folder: Path) -> None:
@@ -103,8 +112,8 @@ CASES: list[Case] = [
      ["panorama.png", "600×256", "must be exactly 2:1"]),
     ("train-box", box_outside_the_image, ["train", "{s}/scene.yaml"],
      ["regions[0].box", "outside the 512×256"]),
-    ("train-frame", broken_frame, ["train", "{s}/scene.yaml"],
-     ["moving/0001.png", "cannot read this image"]),
+    ("train-frame", broken_working_frame, ["train", "{s}/scene.yaml"],
+     ["moving/0001.exr", "cannot read this image"]),
     ("train-checkpoint", unreadable_checkpoint, ["train", "{s}/scene.yaml"],
      ["checkpoints/static.pt", "unreadable checkpoint", "delete it"]),
     ("animate-2to1", panorama_not_2_to_1, ["animate", "{s}/scene.yaml"],
@@ -143,6 +152,37 @@ CASES: list[Case] = [
      ["--width 510", "510x255", "512x256"]),
     ("batch-missing", nothing, ["batch", "{s}/nope.yaml", "--report", "{s}/batch.json"],
      ["nope.yaml not found"]),
+    ("render-stereo-perspective", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--stereo", "top-bottom"],
+     ["--stereo top-bottom", "add --projection equirect"]),
+    ("render-stereo-mode", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--stereo", "side-by-side"], ["--stereo", "'side-by-side'", "top-bottom"]),
+    ("render-ipd", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--stereo", "top-bottom", "--ipd", "0"], ["--ipd 0.0", "must be positive"]),
+    ("render-ipd-negative", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--stereo", "top-bottom", "--ipd", "-0.1"], ["--ipd -0.1", "must be positive"]),
+    ("render-equirect-2to1", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.png", "--projection", "equirect",
+      "--width", "1000", "--height", "600"], ["1000x600", "must be 2:1"]),
+    ("render-equirect-8k", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--width", "16384"], ["16384x8192", "1 to 8192"]),
+    ("render-stereo-8k", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--stereo", "top-bottom", "--width", "8192", "--height", "16384"],
+     ["8192x16384", "1 to 8192"]),
+    ("render-equirect-turntable", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/v.mp4", "--projection", "equirect",
+      "--path", "turntable"], ["--path 'turntable'", "fly-through"]),
+    ("export-format", nothing,
+     ["export", "{s}/output/scene.ply4d", "{s}/out.xyz", "--format", "xyz"],
+     ["--format 'xyz'", "ply, compressed-ply, spz, sog, splat"]),
+    ("export-sequence-time", nothing,
+     ["export", "{s}/output/scene.ply4d", "{s}/seq", "--sequence", "--time", "1"],
+     ["--sequence", "--time 1"]),
 ]  # fmt: skip
 
 
@@ -233,6 +273,12 @@ FULL_DISK: list[Case] = [
      ["render", "{s}/output/scene.ply4d", "-o", "{s}/view.mp4", "--path", "turntable",
       "--frames", "4", "--width", "64", "--height", "32"], ["{s}/view.mp4"]),
     ("export", nothing, ["export", "{s}/output/scene.ply4d", "{s}/t0.ply"], ["{s}/t0.ply"]),
+    ("export-sequence", nothing,
+     ["export", "{s}/output/scene.ply4d", "{s}/seq", "--format", "sog", "--sequence"],
+     ["{s}/seq:"]),
+    ("render-360", nothing,
+     ["render", "{s}/output/scene.ply4d", "-o", "{s}/vr.mp4", "--projection", "equirect",
+      "--width", "64"], ["{s}/vr.mp4"]),
     ("init", nothing, ["init", "{s}/other.yaml"], ["{s}/other.yaml"]),
 ]  # fmt: skip
 

@@ -63,6 +63,36 @@ def parse_camera(spec: str | None, width: int, height: int) -> Camera:
         raise RenderArgumentError(f"--camera {text.strip()}: {e}") from e
 
 
+def scene_clock(scene: Path) -> tuple[int, float]:
+    """The number of timestamps of ``scene`` and the rate they were made at (the .ply4d's
+    ``fps``); a plain .ply is one timestamp."""
+    if scene.suffix == ".ply4d":
+        f = ply4d.open(scene)
+        return f.num_times, float(f.header["fps"])
+    return 1, 1.0
+
+
+def timestamp_at(frame: int, video_fps: float, scene_fps: float, num_times: int) -> int:
+    """The timestamp index that frame ``frame`` of a ``video_fps`` video shows: the scene
+    plays at its own rate, looping, whatever the video's (a 30 fps video of an 8 fps scene
+    holds each timestamp for 3.75 frames)."""
+    # The small slack keeps a frame that lands exactly on a timestamp (i·8/30 = 4.0) from
+    # rounding down to the one before.
+    return math.floor(frame * scene_fps / video_fps + 1e-9) % num_times
+
+
+def gaussians_per_frame(scene: Path, frames: int, fps: float) -> Iterator[Gaussians]:
+    """The Gaussians each of ``frames`` video frames at ``fps`` shows (``timestamp_at``);
+    each timestamp is read once for the run of frames that show it."""
+    num_times, scene_fps = scene_clock(scene)
+    shown, g = -1, Gaussians.empty()
+    for i in range(frames):
+        t = timestamp_at(i, fps, scene_fps, num_times)
+        if t != shown:
+            g, shown = load_gaussians(scene, t)[0], t
+        yield g
+
+
 def load_gaussians(scene: Path, time: int) -> tuple[Gaussians, int]:
     """Gaussians of ``scene`` at timestamp ``time`` and the scene's number of timestamps."""
     if scene.suffix == ".ply4d":
@@ -133,18 +163,15 @@ def render_path(
     fps: float,
     backend: str = "wgpu",
 ) -> None:
-    """A video along a camera path; time advances through the scene's timestamps, looping."""
-    first, num_times = load_gaussians(scene, 0)
-    radius = 0.05 * float(torch.linalg.norm(first.means, dim=-1).median()) if len(first) else 1.0
-    cams = path_cameras(kind, width, height, frames, radius)
+    """A video along a camera path; time follows the scene's own rate (``timestamp_at``)."""
+    cams = path_cameras(kind, width, height, frames, path_radius(scene))
+    shown = zip(gaussians_per_frame(scene, frames, fps), cams, strict=True)
+    images.write_video(
+        out, (to_image(render(g, cam, backend=backend).rgb) for g, cam in shown), fps
+    )
 
-    def rendered() -> Iterator[np.ndarray]:
-        cached: dict[int, Gaussians] = {0: first}
-        for i, cam in enumerate(cams):
-            t = i % num_times
-            if t not in cached:
-                cached.clear()
-                cached[t] = load_gaussians(scene, t)[0]
-            yield to_image(render(cached[t], cam, backend=backend).rgb)
 
-    images.write_video(out, rendered(), fps)
+def path_radius(scene: Path) -> float:
+    """The fly-through's radius: 5 % of the median distance of timestamp 0's Gaussians."""
+    first, _ = load_gaussians(scene, 0)
+    return 0.05 * float(torch.linalg.norm(first.means, dim=-1).median()) if len(first) else 1.0

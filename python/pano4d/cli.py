@@ -221,14 +221,35 @@ def evaluate(
 @app.command()
 def export(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
-    out: Annotated[Path, typer.Argument(help="The plain 3DGS .ply to write.")],
-    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index.")] = 0,
+    out: Annotated[
+        Path, typer.Argument(help="The file to write (with --sequence: a new folder).")
+    ],
+    time: Annotated[
+        int | None, typer.Option("--time", "-t", help="Timestamp index (default 0).")
+    ] = None,
+    fmt: Annotated[
+        str | None,
+        typer.Option(
+            "--format",
+            help="ply | compressed-ply | spz | sog | splat (default: from OUT's ending, else ply).",
+        ),
+    ] = None,
+    sequence: Annotated[
+        bool,
+        typer.Option(help="Every timestamp, as OUT/frame_0000.<ext>… (SuperSplat's timeline)."),
+    ] = False,
 ) -> None:
-    """Write one timestamp (static + dynamic Gaussians) as a plain 3DGS .ply any tool opens."""
-    from pano4d import ply4d
+    """Write a timestamp (static + dynamic Gaussians), or every one, as splats other tools
+    open: plain 3DGS .ply, SuperSplat .compressed.ply, SPZ, SOG (.sog) or .splat."""
+    from pano4d import ply4d, share_formats
+    from pano4d.progress import Bars
 
-    ply4d.export(scene, time, out)
-    console.print(f"wrote {out} (time index {time})")
+    num_times = ply4d.open(scene).num_times if sequence else 1
+    with Bars(enabled=sequence, transient=True, console=console) as bars:
+        times = bars.task("exporting", num_times)
+        written = share_formats.export(scene, out, fmt, time, sequence, times.advance)
+    what = f"{len(written)} timestamps" if sequence else f"time index {time or 0}"
+    console.print(f"wrote {out} ({what})")
 
 
 @app.command()
@@ -305,23 +326,78 @@ def render_command(
         ),
     ] = None,
     time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index (.ply4d).")] = 0,
-    width: Annotated[int, typer.Option(help="Image width.")] = 1280,
-    height: Annotated[int, typer.Option(help="Image height.")] = 720,
+    width: Annotated[
+        int | None,
+        typer.Option(help="Image width (default 1280; 4096 with --projection equirect)."),
+    ] = None,
+    height: Annotated[
+        int | None,
+        typer.Option(
+            help="Image height (default 720; equirect: width / 2, or the whole top-bottom "
+            "stereo frame, width by default)."
+        ),
+    ] = None,
     path: Annotated[
         str | None, typer.Option(help="Render a video instead: turntable | fly-through.")
     ] = None,
-    frames: Annotated[int, typer.Option(help="Video length in frames (--path).")] = 120,
-    fps: Annotated[float, typer.Option(help="Video frame rate (--path).")] = 30.0,
+    frames: Annotated[
+        int | None,
+        typer.Option(help="Video length in frames (default 120; a 360° video: one loop)."),
+    ] = None,
+    fps: Annotated[
+        float, typer.Option(help="Video frame rate; scene time plays at the scene's own.")
+    ] = 30.0,
+    projection: Annotated[
+        str,
+        typer.Option(help="perspective | equirect (a 360° still, or a video with .mp4)."),
+    ] = "perspective",
+    stereo: Annotated[
+        str | None,
+        typer.Option(help="top-bottom: omnidirectional stereo, left eye on top (equirect)."),
+    ] = None,
+    ipd: Annotated[
+        float | None,
+        typer.Option(
+            help="Stereo eye distance in scene units (default: 0.064/1.6 of the eye's "
+            "height above the ground, 1.6 m read as the eye height)."
+        ),
+    ] = None,
     backend: Annotated[Backend, typer.Option(help="Rasteriser.")] = "wgpu",
 ) -> None:
-    """Render test views of a scene headless, through the same rasteriser as training."""
-    from pano4d import camera_paths
+    """Render views of a scene headless, through the same rasteriser as training:
+    perspective stills and camera paths, 360° equirect stills and videos (mono or stereo)."""
+    from pano4d import camera_paths, panorama_video
+    from pano4d.progress import Bars
 
+    if projection not in ("perspective", "equirect"):
+        fail(f"--projection must be 'perspective' or 'equirect', got {projection!r}")
+    if stereo not in (None, "top-bottom"):
+        fail(f"--stereo must be 'top-bottom' (left eye on top), got {stereo!r}")
+    if stereo is not None and projection != "equirect":
+        fail("--stereo top-bottom renders a 360° frame: add --projection equirect")
+    if ipd is not None and stereo is None:
+        fail(f"--ipd {ipd} sets the stereo eye distance: add --stereo top-bottom")
+    if projection == "equirect":
+        # Defaults: 4096 wide; a mono frame 2:1, a stereo frame square (two 2:1 eyes).
+        w = width if width is not None else 4096 if stereo or height is None else 2 * height
+        h = height if height is not None else (w if stereo else w // 2)
+        frame = panorama_video.Frame360(w, h, stereo is not None, ipd)
+        with Bars(transient=True, console=console) as bars:
+            drawn = panorama_video.render_360(
+                scene, out, frame, time, path, frames, fps, backend=backend, bars=bars
+            )
+        eyes = f", IPD {drawn.ipd:.4g} scene units" if drawn.ipd is not None else ""
+        console.print(f"wrote {out} ({w}x{h} equirect{', top-bottom stereo' if stereo else ''}"
+                      f"{eyes})")  # fmt: skip
+        return
+    w = 1280 if width is None else width
+    h = 720 if height is None else height
     if path is None:
-        cam = camera_paths.parse_camera(camera, width, height)
+        cam = camera_paths.parse_camera(camera, w, h)
         camera_paths.render_still(scene, cam, time, out, backend=backend)
     else:
-        camera_paths.render_path(scene, path, out, width, height, frames, fps, backend=backend)
+        count = 120 if frames is None else frames
+        camera_paths.render_path(scene, path, out, w, h, count, fps, backend=backend)
     console.print(f"wrote {out}")
 
 

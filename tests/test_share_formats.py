@@ -1,0 +1,253 @@
+"""`pano4d export --format ply|compressed-ply|spz|sog|splat [--time T | --sequence]`: each
+format read back by a reader that is not its writer and rendered against the .ply4d at the
+same camera.
+
+Readers: plyfile (.ply), pano4d's Rust reader (SuperSplat .compressed.ply; gaussforge wrote
+it), gsply (SPZ), and for SOG and .splat small decoders here that follow the published
+layouts (PlayCanvas's SOG spec, meta.json + lossless WebP read by Pillow; antimatter15's
+32-byte .splat records): no SOG reader exists without npm.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import gsply
+import numpy as np
+import plyfile
+import pytest
+import torch
+from pano4d_process import pano4d
+from PIL import Image
+
+from pano4d import ply4d
+from pano4d.camera import Camera
+from pano4d.gaussians import Gaussians, sh_coeffs_for_degree
+from pano4d.metrics import psnr
+from pano4d.renderer import render
+
+C0 = 0.28209479177387814
+
+
+def discs(n: int, degree: int, seed: int) -> Gaussians:
+    """Flat, randomly turned, half-transparent discs in front of the origin (+x): a wrong
+    rotation, scale or opacity changes what the camera sees."""
+    gen = torch.Generator().manual_seed(seed)
+
+    def rand(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=gen)
+
+    sh = torch.zeros(n, sh_coeffs_for_degree(degree), 3)
+    sh[:, 0] = (0.15 + 0.7 * rand(n, 3) - 0.5) / C0
+    sh[:, 1:] = 0.3 * (2 * rand(n, sh.shape[1] - 1, 3) - 1)
+    log_scales = torch.log(0.05 + 0.25 * rand(n, 3))
+    log_scales[:, 2] = math.log(0.01)
+    return Gaussians(
+        means=torch.tensor([4.0, 0.0, 0.0]) + 1.5 * (2 * rand(n, 3) - 1),
+        log_scales=log_scales,
+        quats=torch.nn.functional.normalize(2 * rand(n, 4) - 1, dim=-1),
+        opacity_logits=4 * rand(n) - 1,
+        sh=sh,
+    )
+
+
+def scene_file(folder: Path, degree: int) -> tuple[ply4d.Scene4D, Path]:
+    scene = ply4d.Scene4D(
+        static=discs(300, degree, seed=1),
+        dynamic=[discs(60, degree, seed=2), discs(60, degree, seed=3)],
+        timestamps=[0.0, 0.125],
+        fps=8.0,
+    )
+    path = folder / "scene.ply4d"
+    ply4d.write(path, scene)
+    return scene, path
+
+
+def exported(path: Path, out: Path, *args: str) -> Path:
+    result = pano4d("export", path, out, *args)
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+# --- readers that are not the writers ------------------------------------------------------
+def read_with_plyfile(path: Path) -> Gaussians:
+    v = plyfile.PlyData.read(str(path))["vertex"].data
+    names = v.dtype.names
+
+    def fields(*keys: str) -> torch.Tensor:
+        return torch.from_numpy(np.stack([v[k] for k in keys], axis=-1).astype(np.float32))
+
+    rest = sorted((k for k in names if k.startswith("f_rest_")), key=lambda k: int(k[7:]))
+    sh = fields("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :]
+    if rest:  # channel-major: all of red's coefficients, then green's, then blue's
+        sh = torch.cat([sh, fields(*rest).reshape(len(v), 3, -1).transpose(1, 2)], dim=1)
+    return Gaussians(
+        fields("x", "y", "z"), fields("scale_0", "scale_1", "scale_2"),
+        fields("rot_0", "rot_1", "rot_2", "rot_3"), fields("opacity")[:, 0], sh,
+    )  # fmt: skip
+
+
+def read_with_gsply(path: Path) -> Gaussians:
+    d = gsply.read_spz(path)
+    n = len(d.means)
+    sh = d.sh0.reshape(n, 1, 3)
+    if d.get_sh_degree() > 0:
+        sh = np.concatenate([sh, np.asarray(d.shN).reshape(n, -1, 3)], axis=1)
+    arrays = [d.means, d.scales, d.quats, d.opacities.reshape(n), sh]
+    return Gaussians(*(torch.from_numpy(np.ascontiguousarray(a, np.float32)) for a in arrays))
+
+
+def logit(p: np.ndarray) -> np.ndarray:
+    p = np.clip(p, 1e-6, 1 - 1e-6)
+    return np.log(p / (1 - p))
+
+
+def read_splat(path: Path) -> Gaussians:
+    """antimatter15's .splat: per Gaussian position and linear scale (float32 × 3 each), RGBA
+    (uint8: base colour, sigmoid of opacity) and the rotation (w, x, y, z) as q·128 + 128."""
+    record = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4),
+                       ("rot", "u1", 4)])  # fmt: skip
+    raw = np.frombuffer(path.read_bytes(), dtype=record)
+    rgba = raw["rgba"] / 255.0
+    return Gaussians(
+        torch.from_numpy(raw["pos"].copy()),
+        torch.from_numpy(np.log(raw["scale"])),
+        torch.from_numpy((raw["rot"] - 128.0) / 128.0).float(),
+        torch.from_numpy(logit(rgba[:, 3])).float(),
+        torch.from_numpy((rgba[:, None, :3] - 0.5) / C0).float(),
+    )
+
+
+def read_sog(path: Path) -> Gaussians:
+    """A bundled SOG (version 2) as PlayCanvas's spec lays it out: every per-Gaussian image
+    holds Gaussian i at pixel i (row-major); positions are 16 bits (means_l, means_u) between
+    meta's mins and maxs of sign(x)·ln(|x| + 1); rotations the three smallest components
+    (·√2, from [0, 255] to [−1, 1]) with 252 + the largest one's index in alpha; scales and
+    colours indices into 256-entry codebooks, opacity the sigmoid in sh0's alpha; higher SH
+    a palette (shN_centroids, 64 entries a row, one pixel a coefficient) chosen by a 16-bit
+    label (shN_labels)."""
+    with zipfile.ZipFile(path) as bundle:
+        meta = json.loads(bundle.read("meta.json"))
+        assert meta["version"] == 2
+        n = meta["count"]
+
+        def pixels(name: str, count: int | None = n) -> np.ndarray:
+            image = Image.open(io.BytesIO(bundle.read(name))).convert("RGBA")
+            return np.asarray(image).reshape(-1, 4)[:count].astype(np.int64)
+
+        lo, hi = (pixels(name) for name in meta["means"]["files"])
+        q = (lo[:, :3] | (hi[:, :3] << 8)) / 65535.0
+        mins, maxs = np.array(meta["means"]["mins"]), np.array(meta["means"]["maxs"])
+        t = mins + (maxs - mins) * q
+        means = np.sign(t) * np.expm1(np.abs(t))
+
+        packed = pixels(meta["quats"]["files"][0])
+        largest = packed[:, 3] - 252
+        assert ((largest >= 0) & (largest <= 3)).all()
+        small = (packed[:, :3] / 255.0 * 2 - 1) / math.sqrt(2)
+        quats = np.zeros((n, 4))
+        for k in range(4):
+            rows = largest == k
+            quats[np.ix_(rows, [i for i in range(4) if i != k])] = small[rows]
+            quats[rows, k] = np.sqrt(np.clip(1 - (small[rows] ** 2).sum(-1), 0, None))
+
+        scales = np.array(meta["scales"]["codebook"])[pixels(meta["scales"]["files"][0])[:, :3]]
+        sh0 = pixels(meta["sh0"]["files"][0])
+        colour_book = np.array(meta["sh0"]["codebook"])
+        sh = [colour_book[sh0[:, None, :3]]]
+        if "shN" in meta:
+            coeffs = sh_coeffs_for_degree(meta["shN"]["bands"]) - 1
+            centroids = pixels(meta["shN"]["files"][0], None)
+            width = 64 * coeffs
+            labels = pixels(meta["shN"]["files"][1])
+            label = labels[:, 0] | (labels[:, 1] << 8)
+            at = (label // 64)[:, None] * width + (label % 64)[:, None] * coeffs + np.arange(coeffs)
+            sh.append(np.array(meta["shN"]["codebook"])[centroids[at][..., :3]])
+        arrays = [means, scales, quats, logit(sh0[:, 3] / 255.0), np.concatenate(sh, axis=1)]
+    return Gaussians(*(torch.from_numpy(a.astype(np.float32)) for a in arrays))
+
+
+READERS = {
+    "ply": read_with_plyfile,
+    "compressed-ply": ply4d.read_ply,
+    "spz": read_with_gsply,
+    "sog": read_sog,
+    "splat": read_splat,
+}
+SUFFIX = {"ply": ".ply", "compressed-ply": ".compressed.ply", "spz": ".spz", "sog": ".sog",
+          "splat": ".splat"}  # fmt: skip
+
+
+def views(g: Gaussians) -> list[torch.Tensor]:
+    """``g`` seen from the panorama's viewpoint and from one step aside (SH shows)."""
+    cams = [Camera.from_fov(70, 128, 96), Camera.from_fov(70, 128, 96, (0, 1.5, 0.5), (1, -0.4, 0))]
+    return [render(g, cam).rgb for cam in cams]
+
+
+def assert_renders_like(decoded: Gaussians, truth: Gaussians, least_db: float = 30.0) -> None:
+    assert len(decoded) == len(truth)
+    for got, want in zip(views(decoded), views(truth), strict=True):
+        assert psnr(got, want) >= least_db, psnr(got, want)
+
+
+@pytest.mark.parametrize(("fmt", "degree"), [
+    ("ply", 0), ("ply", 1), ("compressed-ply", 0), ("compressed-ply", 1), ("spz", 0),
+    ("spz", 1), ("sog", 0), ("sog", 1), ("splat", 0),
+])  # fmt: skip
+def test_each_format_renders_as_the_scene(tmp_path: Path, fmt: str, degree: int) -> None:
+    scene, path = scene_file(tmp_path, degree)
+    out = exported(path, tmp_path / f"t1{SUFFIX[fmt]}", "--format", fmt, "--time", "1")
+    decoded, truth = READERS[fmt](out), scene.at(1)
+    assert_renders_like(decoded, truth)
+    if fmt == "ply":  # lossless: every value as stored
+        for name, value in truth.tensors().items():
+            assert torch.equal(decoded.tensors()[name], value), name
+
+
+def test_lossy_formats_keep_each_value_within_their_quantisation(tmp_path: Path) -> None:
+    """Positions to a 16-bit step of the range in SOG (which reorders the Gaussians in
+    space: each is matched to its nearest) and a 12-bit fixed point in SPZ, the .splat's
+    colour and opacity to one 8-bit step (gaussforge truncates)."""
+    scene, path = scene_file(tmp_path, 0)
+    truth = scene.at(0)
+    sog = read_sog(exported(path, tmp_path / "t.sog"))
+    log_range = np.log1p(truth.means.abs().max().item())
+    step = math.expm1(log_range) - math.expm1(log_range - 2 * log_range / 65535)
+    distance, nearest = torch.cdist(sog.means.double(), truth.means.double()).min(dim=1)
+    assert distance.max() <= step * math.sqrt(3)
+    assert len(set(nearest.tolist())) == len(truth)  # one decoded Gaussian for each
+    spz = read_with_gsply(exported(path, tmp_path / "t.spz"))
+    assert (spz.means - truth.means).abs().max() <= 2.0**-12
+    splat = read_splat(exported(path, tmp_path / "t.splat"))
+    assert torch.equal(splat.means, truth.means)
+    base = (0.5 + C0 * truth.sh[:, 0]).clamp(0, 1)
+    assert ((0.5 + C0 * splat.sh[:, 0]) - base).abs().max() <= 1 / 255 + 1e-6
+    alpha = torch.sigmoid(truth.opacity_logits)
+    assert (torch.sigmoid(splat.opacity_logits) - alpha).abs().max() <= 1 / 255 + 1e-6
+
+
+def test_the_format_follows_the_ending_of_the_file(tmp_path: Path) -> None:
+    scene, path = scene_file(tmp_path, 0)
+    assert zipfile.is_zipfile(exported(path, tmp_path / "t.sog"))
+    header = exported(path, tmp_path / "t.compressed.ply").read_bytes()[:200]
+    assert header.startswith(b"ply\n") and b"\nelement chunk " in header
+    assert exported(path, tmp_path / "t.spz").read_bytes()[:4] == b"NGSP"  # SPZ version 4
+    assert_renders_like(read_with_plyfile(exported(path, tmp_path / "t.bin")), scene.at(0))
+
+
+def test_a_sequence_is_a_folder_of_every_timestamp(tmp_path: Path) -> None:
+    scene, path = scene_file(tmp_path, 1)
+    out = exported(path, tmp_path / "frames", "--format", "sog", "--sequence")
+    assert sorted(p.name for p in out.iterdir()) == ["frame_0000.sog", "frame_0001.sog"]
+    for t in range(2):
+        assert_renders_like(read_sog(out / f"frame_{t:04d}.sog"), scene.at(t))
+    # A second run would mix two sequences: it refuses, and the first stays as it was.
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    again = pano4d("export", path, out, "--format", "ply", "--sequence")
+    assert again.returncode == 2 and "not an empty folder" in again.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
