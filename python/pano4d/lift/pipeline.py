@@ -133,6 +133,13 @@ def working_panorama(cfg: SceneConfig) -> tuple[PresetKnobs, tuple[int, int]]:
     return knobs, working_size(input_width, knobs.view_size, cfg.lift.fov_deg)
 
 
+def read_frames(folder: Path, count: int, size: tuple[int, int], suffix: str) -> torch.Tensor:
+    """The animation frames in ``folder`` (the animating phase's store at any size or whole
+    frames put there by hand: ``animate.frames.open_frames``) as (L, H, W, 3)
+    area-downsampled to ``size`` (W, H)."""
+    return open_frames(folder, count, suffix).area_downsampled(size)
+
+
 def animation_frames(
     cfg: SceneConfig, checkpoints: Checkpoints, progress: bool, on_step: StepHook | None
 ) -> Path:
@@ -179,11 +186,10 @@ def prepare(
 
     ``frames_dir`` holds the animating phase's frames at any size (``animation_frames``:
     the working size itself, or whole frames put there by hand), area-downsampled here to
-    the working size (``animate.frames.open_frames``)."""
+    the working size (``read_frames``)."""
     full_w, full_h = image_size(cfg.panorama)
     knobs, size = working_panorama(cfg)
-    suffix = frame_suffix(cfg.panorama)
-    frames = open_frames(frames_dir, cfg.animate.frames, suffix).area_downsampled(size)
+    frames = read_frames(frames_dir, cfg.animate.frames, size, frame_suffix(cfg.panorama))
     return LiftInputs(
         cfg=cfg,
         knobs=knobs,
