@@ -230,6 +230,33 @@ def test_lossy_formats_keep_each_value_within_their_quantisation(tmp_path: Path)
     assert (torch.sigmoid(splat.opacity_logits) - alpha).abs().max() <= 1 / 255 + 1e-6
 
 
+def test_a_compressed_ply_keeps_near_gaussians_near_beside_a_far_sky(tmp_path: Path) -> None:
+    """A panorama's scene: discs a few units from the viewpoint and a sky shell a thousand
+    away, in an order that mixes them (as training leaves them). A .compressed.ply quantises
+    each run of 256 within the run's box: unless the export groups Gaussians by distance, a
+    near disc sharing a run with the sky moves by a tenth of its distance. 600 near discs fill
+    no whole runs: the export pads them with transparent ones rather than mix in the sky."""
+    near = discs(600, 0, seed=4)
+    sky = discs(600, 0, seed=5)
+    direction = torch.nn.functional.normalize(
+        2 * torch.rand(600, 3, generator=torch.Generator().manual_seed(6)) - 1, dim=-1
+    )
+    sky.means = 1000.0 * direction
+    both = Gaussians.cat([near, sky])
+    both = both[torch.randperm(len(both), generator=torch.Generator().manual_seed(7))]
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(
+        path, ply4d.Scene4D(static=both, dynamic=[Gaussians.empty(0)], timestamps=[0.0], fps=8.0)
+    )
+    decoded = ply4d.read_ply(exported(path, tmp_path / "t.compressed.ply"))
+    distance, _ = torch.cdist(decoded.means.double(), both.means.double()).min(dim=1)
+    relative = distance / decoded.means.double().norm(dim=1)
+    assert relative.max() <= 0.01, relative.max()
+    visible = torch.sigmoid(decoded.opacity_logits) > 1 / 510  # over half an 8-bit step
+    assert visible.sum() == len(both)  # the padding is transparent: opacity 0 in 8 bits
+    assert_renders_like(decoded[visible], both)
+
+
 def test_the_format_follows_the_ending_of_the_file(tmp_path: Path) -> None:
     scene, path = scene_file(tmp_path, 0)
     assert zipfile.is_zipfile(exported(path, tmp_path / "t.sog"))

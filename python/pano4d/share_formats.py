@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from pano4d import ply4d
 from pano4d.errors import InputError
@@ -42,6 +43,11 @@ FORMATS = {
 # SPZ version 4 (zstd) is what Niantic's library, PlayCanvas and SuperSplat write and read
 # today; PlayCanvas reads no other.
 SPZ_VERSION = 4
+# A .compressed.ply quantises each run of this many Gaussians, in file order, within the
+# run's own bounding box (position to 11/10/11 bits).
+COMPRESSED_PLY_CHUNK = 256
+MORTON_BITS = 21  # per axis: three of them fill a 64-bit code
+TRANSPARENT_LOGIT = -30.0  # sigmoid ≈ 1e-13: opacity 0 in the format's 8 bits
 
 
 class ExportArgumentError(InputError, ValueError):
@@ -65,10 +71,58 @@ def format_of(out: Path) -> str:
     return max(known, key=lambda key: len(FORMATS[key].suffix), default="ply")
 
 
+def morton_codes(points: np.ndarray) -> np.ndarray:
+    """(N,) uint64: each point's place along a Z-order curve through the points' bounds."""
+    lo, hi = points.min(0), points.max(0)
+    cells = (points - lo) / np.maximum(hi - lo, 1e-12) * (2**MORTON_BITS - 1)
+    q = cells.astype(np.uint64)
+    code = np.zeros(len(points), np.uint64)
+    for bit in range(MORTON_BITS):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return code
+
+
+def compressed_ply_chunks(g: Gaussians) -> Gaussians:
+    """``g`` reordered (and padded) so that each run of COMPRESSED_PLY_CHUNK Gaussians is small
+    for its distance from the viewpoint (the origin).
+
+    A panorama's scene spans a few units around the viewpoint to the sky's thousand. In the
+    order training leaves them, or along one Z-order curve (which leaps across the scene
+    between neighbouring cells), a run holds a near Gaussian and a far one, and its box's
+    quantisation step (extent / 2048) moves the near one by a tenth of its distance. So the
+    Gaussians go by octave of distance, along a Z-order curve within each octave; a run that
+    straddles two neighbouring octaves keeps a step within a few thousandths of its distance.
+    Where octaves are empty between two groups (a room and the sky through its window), no run
+    may straddle the gap: the nearer group is padded to whole runs with fully transparent
+    copies of its last Gaussian (at most COMPRESSED_PLY_CHUNK − 1 per gap; none on a scene
+    whose depth is continuous, as a real panorama's is)."""
+    if len(g) == 0:
+        return g
+    means = g.means.detach().cpu().numpy()
+    octave = np.floor(np.log2(np.maximum(np.linalg.norm(means, axis=1), 1e-6))).astype(np.int64)
+    order = np.lexsort((morton_codes(means), octave))
+    ordered = g[torch.from_numpy(order)]
+    octaves = octave[order]
+    # Group ends: where the next Gaussian lies two or more octaves further out.
+    ends = [int(i) + 1 for i in np.nonzero(np.diff(octaves) > 1)[0]]
+    parts, start = [], 0
+    for end in ends:
+        group = ordered[start:end]
+        missing = -len(group) % COMPRESSED_PLY_CHUNK
+        filler = group[torch.full((missing,), len(group) - 1)]
+        filler.opacity_logits = torch.full_like(filler.opacity_logits, TRANSPARENT_LOGIT)
+        parts += [group, filler]
+        start = end
+    return Gaussians.cat([*parts, ordered[start:]])
+
+
 def encode(g: Gaussians, fmt: ShareFormat) -> bytes:
     """``g`` in a gaussforge format, encoded from its arrays (no .ply in between)."""
     import gaussforge
 
+    if fmt.gaussforge == "compressed.ply":
+        g = compressed_ply_chunks(g)
     arrays = {name: np.ascontiguousarray(a, dtype="<f4") for name, a in g.to_numpy().items()}
     sh = arrays["sh"]
     rest = sh[:, 1:, :]
