@@ -10,10 +10,11 @@
 
 use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
 use super::losses::{
-    LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS, OUTSIDE_SUMS,
+    LossBuffers, LossKernels, LossParams, LossParts, LossWeights, ViewBuffers, LOSS_PARTS,
+    OUTSIDE_SUMS,
 };
 use crate::camera::Camera;
-use crate::gaussians::{SceneInput, BASE_FLOATS};
+use crate::gaussians::{sh_coeffs, SceneInput, BASE_FLOATS};
 use crate::raster::gpu::{pop_error, read_mapped, submit_checked};
 use crate::raster::{
     binding_limit, Frame, GpuScene, IntersectionCheck, RasterError, RenderSettings, Renderer,
@@ -328,8 +329,15 @@ impl TrainSession {
         self.trained.len == 0
     }
 
-    pub fn context_len(&self) -> usize {
+    pub fn static_len(&self) -> usize {
         self.n_context as usize
+    }
+
+    /// The SH degree of every Gaussian in the session.
+    pub fn sh_degree(&self) -> u32 {
+        (0..=3)
+            .find(|&d| sh_coeffs(d) == self.sh_coeffs as usize)
+            .expect("validated SH coefficients")
     }
 
     pub fn views(&self) -> usize {
@@ -630,7 +638,7 @@ impl TrainSession {
         &mut self,
         view: usize,
         pixels: &[f32],
-    ) -> Result<(Vec<f32>, [f32; LOSS_PARTS]), RasterError> {
+    ) -> Result<(Vec<f32>, LossParts), RasterError> {
         let camera = self.view(view)?.camera;
         let len = PIXEL_CHANNELS * (camera.width * camera.height) as usize;
         check_len("pixels", pixels.len(), len)?;
@@ -738,12 +746,13 @@ impl TrainSession {
         self.apply_adam()
     }
 
-    /// The last step's loss parts: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
-    /// weight, whether L_geo applied].
-    pub fn loss(&mut self) -> Result<[f32; LOSS_PARTS], RasterError> {
+    /// The last step's loss and its parts.
+    pub fn loss(&mut self) -> Result<LossParts, RasterError> {
         let loss = self.loss_buffers.loss.clone();
         let parts = self.read(&[(&loss, 0, 4 * LOSS_PARTS as u64)])?;
-        Ok(parts.try_into().expect("LOSS_PARTS floats"))
+        Ok(LossParts::from_floats(
+            parts.try_into().expect("LOSS_PARTS floats"),
+        ))
     }
 
     /// The scene's sections for Gaussians `first..first + n`, as read-back regions.
