@@ -35,7 +35,7 @@ pub struct AdamConfig {
 gpu_struct! {
     /// The uniform of one Adam step (adam.wgsl documents each field).
     pub(crate) struct AdamParams {
-        n_context: u32,
+        n_static: u32,
         n_train: u32,
         stride: u32,
         grad_len: u32,
@@ -59,7 +59,7 @@ gpu_struct! {
 /// Where the trained Gaussians and their gradients lie (see adam.wgsl's header).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct AdamLayout {
-    pub n_context: u32,
+    pub n_static: u32,
     pub n_train: u32,
     pub stride: u32,
     pub sh_coeffs: u32,
@@ -83,10 +83,10 @@ impl AdamConfig {
             *out = -(lr / bias1) as f32;
         }
         AdamParams {
-            n_context: layout.n_context,
+            n_static: layout.n_static,
             n_train: layout.n_train,
             stride: layout.stride,
-            grad_len: layout.n_context + layout.n_train,
+            grad_len: layout.n_static + layout.n_train,
             sh_coeffs: layout.sh_coeffs,
             has_extra: layout.has_extra as u32,
             pad0: 0,

@@ -18,15 +18,15 @@
 // densification statistic is torch's too: the norm of g_o across the ray from the origin
 // (the training views' centre: the screen-space part, as 3DGS's) and whether it is non-zero.
 //
-// The scene holds the frozen context first (`n_context` Gaussians, never updated) and the
+// The scene holds the frozen static set first (`n_static` Gaussians, never updated) and the
 // trained set after it; the scene's SoA sections are `stride` long, the gradients'
-// `grad_len` (= context + trained), the moments' `n_train` (gaussian_layout.wgsl's
+// `grad_len` (= static set + trained), the moments' `n_train` (gaussian_layout.wgsl's
 // `gaussian_offsets` places each; after common.wgsl for `linear_workgroup`).
 
 // Rust: train/adam.rs's `AdamParams` (the one declaration; the wgsl tests check this one
 // against it).
 struct AdamParams {
-    n_context: u32,
+    n_static: u32,
     n_train: u32,
     stride: u32,
     grad_len: u32,
@@ -48,7 +48,7 @@ struct AdamParams {
 }
 
 @group(0) @binding(0) var<uniform> ap: AdamParams;
-// The scene: the context, then the trained set.
+// The scene: the static set, then the trained set.
 @group(0) @binding(1) var<storage, read_write> gaussians: array<f32>;
 @group(0) @binding(2) var<storage, read> grads: array<f32>;
 @group(0) @binding(3) var<storage, read> grads_extra: array<f32>;
@@ -89,7 +89,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if i >= ap.n_train {
         return;
     }
-    let gi = ap.n_context + i;
+    let gi = ap.n_static + i;
     let s = gaussian_offsets(ap.stride);
     let g = gaussian_offsets(ap.grad_len);
     let m = gaussian_offsets(ap.n_train);

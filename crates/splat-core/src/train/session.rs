@@ -1,4 +1,4 @@
-//! A training session: the Gaussians being trained (after a frozen context), their Adam
+//! A training session: the Gaussians being trained (after a frozen static set), their Adam
 //! moments, the stage's targets and the scratch of one step, all resident on the device.
 //!
 //! One step ([`TrainSession::step`]) is forward → losses and their pixel gradient →
@@ -89,10 +89,10 @@ struct View {
     weight: wgpu::Buffer,
     depth: Option<wgpu::Buffer>,
     previous: Option<wgpu::Buffer>,
-    /// The frozen context's own render of this view, made by the first
-    /// [`TrainSession::reserve_frames`] (the context and the camera do not change in a
+    /// The static set's own render of this view, made by the first
+    /// [`TrainSession::reserve_frames`] (the static set and the camera do not change in a
     /// session): the steps copy the tiles that no trained Gaussian reaches from it.
-    frozen_render: Option<wgpu::Buffer>,
+    static_render: Option<wgpu::Buffer>,
 }
 
 /// Per-Gaussian buffers of the trained set, sized for its count.
@@ -119,8 +119,8 @@ pub struct TrainSession {
     /// Bound where a view has no depth or previous render.
     placeholder: wgpu::Buffer,
     sh_coeffs: u32,
-    n_context: u32,
-    /// The scene: context then trained set, SoA sections of `capacity`.
+    n_static: u32,
+    /// The scene: static set then trained set, SoA sections of `capacity`.
     scene: wgpu::Buffer,
     capacity: u32,
     trained: Trained,
@@ -164,11 +164,11 @@ fn check_len(what: &str, got: usize, want: usize) -> Result<(), RasterError> {
 }
 
 impl TrainSession {
-    /// A session on `renderer`'s device: uploads the frozen `context` (may be empty), the
+    /// A session on `renderer`'s device: uploads the frozen `static_set` (may be empty), the
     /// trained set and the views' targets once.
     pub fn new(
         renderer: &Renderer,
-        context: SceneInput<'_>,
+        static_set: SceneInput<'_>,
         trained: TrainedInput<'_>,
         views: &[ViewTargets<'_>],
         config: TrainConfig,
@@ -184,12 +184,12 @@ impl TrainSession {
             .map(|v| v.camera.width * v.camera.height)
             .max()
             .unwrap_or(0);
-        let (n_context, k_context) = context.validate().map_err(invalid)?;
+        let (n_static, k_static) = static_set.validate().map_err(invalid)?;
         let (n_train, k_train) = trained.gaussians.validate().map_err(invalid)?;
-        let sh_coeffs = if n_train > 0 { k_train } else { k_context };
-        if n_context > 0 && n_train > 0 && k_context != k_train {
+        let sh_coeffs = if n_train > 0 { k_train } else { k_static };
+        if n_static > 0 && n_train > 0 && k_static != k_train {
             return Err(invalid(format!(
-                "the context has {k_context} SH coefficients per channel and the trained set \
+                "the static set has {k_static} SH coefficients per channel and the trained set \
                  {k_train}: give both the same degree"
             )));
         }
@@ -210,7 +210,7 @@ impl TrainSession {
             frame_pixels: 0,
             placeholder: storage(&device, "placeholder", 1),
             sh_coeffs,
-            n_context,
+            n_static,
             scene: storage(&device, "scene", 0),
             capacity: 0,
             trained: Trained {
@@ -240,8 +240,8 @@ impl TrainSession {
             "extra pixel gradients",
             PIXEL_CHANNELS as u64 * max_pixels as u64,
         );
-        session.allocate_scene(n_context + n_train)?;
-        session.write_scene(0, &context);
+        session.allocate_scene(n_static + n_train)?;
+        session.write_scene(0, &static_set);
         session.set_trained(trained)?;
         pop_error(scope)?;
         Ok(session)
@@ -303,7 +303,7 @@ impl TrainSession {
             weight: array("target weight", view.weight),
             depth: view.depth.map(|d| array("target depth", d)),
             previous: view.previous.map(|p| array("previous render", p)),
-            frozen_render: None,
+            static_render: None,
         };
         self.views.push(view);
         Ok(())
@@ -330,7 +330,7 @@ impl TrainSession {
     }
 
     pub fn static_len(&self) -> usize {
-        self.n_context as usize
+        self.n_static as usize
     }
 
     /// The SH degree of every Gaussian in the session.
@@ -383,8 +383,8 @@ impl TrainSession {
         Ok(data)
     }
 
-    /// Makes room for `total` Gaussians (context + trained); a larger scene buffer gets the
-    /// context copied over on the device.
+    /// Makes room for `total` Gaussians (static set + trained); a larger scene buffer gets the
+    /// static set copied over on the device.
     fn allocate_scene(&mut self, total: u32) -> Result<(), RasterError> {
         if total <= self.capacity && self.capacity > 0 {
             return Ok(());
@@ -402,7 +402,7 @@ impl TrainSession {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         let (mut old_start, mut new_start) = (0, 0);
         for width in section_widths(self.sh_coeffs) {
-            let bytes = 4 * width * self.n_context as u64;
+            let bytes = 4 * width * self.n_static as u64;
             if bytes > 0 && self.capacity > 0 {
                 encoder.copy_buffer_to_buffer(&self.scene, old_start, &scene, new_start, bytes);
             }
@@ -463,8 +463,8 @@ impl TrainSession {
                 check_len(what, d.len(), want)?;
             }
         }
-        self.allocate_scene(self.n_context + n)?;
-        self.write_scene(self.n_context, &t.gaussians);
+        self.allocate_scene(self.n_static + n)?;
+        self.write_scene(self.n_static, &t.gaussians);
         let device = self.device.clone();
         let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
             let buffer = storage(&device, label, len as u64);
@@ -490,7 +490,7 @@ impl TrainSession {
             exp_avg_sq,
             stats,
         };
-        let grad_floats = self.floats_per_gaussian() * (self.n_context + n) as u64;
+        let grad_floats = self.floats_per_gaussian() * (self.n_static + n) as u64;
         self.grads = storage(&device, "gradients", grad_floats);
         self.grads_extra = storage(&device, "extra gradients", grad_floats);
         self.adam_steps = t.adam_steps;
@@ -502,10 +502,10 @@ impl TrainSession {
     fn scene_buffer(&self) -> SceneBuffer {
         SceneBuffer {
             buffer: self.scene.clone(),
-            len: self.n_context + self.trained.len,
+            len: self.n_static + self.trained.len,
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
-            frozen: self.n_context,
+            n_static: self.n_static,
         }
     }
 
@@ -548,7 +548,7 @@ impl TrainSession {
     /// where the loop waits anyway (at the start of a stage, after densification): steps
     /// do not wait for their counts, and a frame with more intersections than room draws
     /// only the background (docs/rasterizer.md, "Frames without a wait"). The first call
-    /// also renders the context alone from each view, which the steps then copy where no
+    /// also renders the static set alone from each view, which the steps then copy where no
     /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
         for index in 0..self.views.len() {
@@ -557,8 +557,8 @@ impl TrainSession {
         }
         self.extra_frame = None;
         self.check_frames(renderer)?;
-        // With room for the whole scene's frames, the context's own ones fit too.
-        self.render_frozen(renderer)
+        // With room for the whole scene's frames, the static set's own ones fit too.
+        self.render_static(renderer)
     }
 
     /// The renderer's check of the frames since the last one (16 bytes read back): how
@@ -590,12 +590,12 @@ impl TrainSession {
         view: usize,
     ) -> Result<(), RasterError> {
         let v = self.view(view)?;
-        let (camera, frozen_render) = (v.camera, v.frozen_render.clone());
+        let (camera, static_render) = (v.camera, v.static_render.clone());
         let frame = renderer.encode_frame(
             self.scene_buffer(),
             &camera,
             &self.config.settings,
-            frozen_render.as_ref(),
+            static_render.as_ref(),
         )?;
         self.frame_pixels = camera.width * camera.height;
         self.encode_losses(view, renderer.frame_pixels())?;
@@ -605,28 +605,28 @@ impl TrainSession {
         Ok(())
     }
 
-    /// Renders the context alone from every view that has no such render yet, and keeps
-    /// it (the context and the views do not change in a session).
-    fn render_frozen(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
-        if self.n_context == 0 {
+    /// Renders the static set alone from every view that has no such render yet, and keeps
+    /// it (the static set and the views do not change in a session).
+    fn render_static(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        if self.n_static == 0 {
             return Ok(());
         }
-        let context = SceneBuffer {
-            len: self.n_context,
+        let static_set = SceneBuffer {
+            len: self.n_static,
             ..self.scene_buffer()
         };
         for index in 0..self.views.len() {
-            if self.views[index].frozen_render.is_some() {
+            if self.views[index].static_render.is_some() {
                 continue;
             }
             let camera = self.views[index].camera;
-            renderer.encode_frame(context.clone(), &camera, &self.config.settings, None)?;
+            renderer.encode_frame(static_set.clone(), &camera, &self.config.settings, None)?;
             let floats = PIXEL_CHANNELS as u64 * (camera.width * camera.height) as u64;
-            let kept = storage(&self.device, "frozen render", floats);
+            let kept = storage(&self.device, "static render", floats);
             let mut encoder = self.device.create_command_encoder(&Default::default());
             encoder.copy_buffer_to_buffer(renderer.frame_pixels(), 0, &kept, 0, 4 * floats);
             self.submit(encoder)?;
-            self.views[index].frozen_render = Some(kept);
+            self.views[index].static_render = Some(kept);
         }
         Ok(())
     }
@@ -705,7 +705,7 @@ impl TrainSession {
     pub fn apply_adam(&mut self) -> Result<(), RasterError> {
         self.adam_steps += 1;
         let layout = AdamLayout {
-            n_context: self.n_context,
+            n_static: self.n_static,
             n_train: self.trained.len,
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
@@ -734,11 +734,11 @@ impl TrainSession {
         self.submit(encoder)
     }
 
-    /// Adam on given gradients (for the context + trained scene, in the backward's
+    /// Adam on given gradients (for the static set + trained scene, in the backward's
     /// layout): what a step does after its backward, for checking the optimiser alone.
     pub fn apply_gradients(&mut self, grads: &[f32]) -> Result<(), RasterError> {
         let floats =
-            self.floats_per_gaussian() as usize * (self.n_context + self.trained.len) as usize;
+            self.floats_per_gaussian() as usize * (self.n_static + self.trained.len) as usize;
         check_len("gradients", grads.len(), floats)?;
         let buffer = self.grads.clone();
         self.upload(&buffer, 0, bytemuck::cast_slice(grads));
@@ -777,21 +777,21 @@ impl TrainSession {
         self.read(&borrowed)
     }
 
-    /// The whole scene, context then trained set, packed as [`SceneInput::packed`].
+    /// The whole scene, static set then trained set, packed as [`SceneInput::packed`].
     pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(0, self.n_context + self.trained.len)
+        self.read_scene(0, self.n_static + self.trained.len)
     }
 
     /// The trained set's parameters alone, packed as [`SceneInput::packed`].
     pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(self.n_context, self.trained.len)
+        self.read_scene(self.n_static, self.trained.len)
     }
 
     /// Reads the trained set and its optimiser state back (one round trip).
     pub fn state(&mut self) -> Result<TrainState, RasterError> {
         let n = self.trained.len as u64;
         let floats = self.floats_per_gaussian() * n;
-        let mut regions = self.scene_regions(self.n_context, self.trained.len);
+        let mut regions = self.scene_regions(self.n_static, self.trained.len);
         let t = &self.trained;
         for (buffer, len) in [
             (&t.unit, n),
