@@ -1,9 +1,20 @@
 //! A training session: the Gaussians being trained (after a frozen static set), their Adam
 //! moments, the stage's targets and the scratch of one step, all resident on the device.
 //!
-//! One step ([`TrainSession::step`]) is forward → losses and their pixel gradient →
-//! backward → Adam, submitted without waiting for the host except where the renderer
-//! itself waits (docs/rasterizer.md). The host reads back the loss parts
+//! One step ([`TrainSession::step`]) is evaluate → forward → losses and their pixel
+//! gradient → backward → Adam, submitted without waiting for the host except where the
+//! renderer itself waits (docs/rasterizer.md).
+//!
+//! The parameters Adam updates live apart from what the rasteriser draws: the trained
+//! set's parameters in a buffer of their own (SoA sections of the set's length, as its
+//! moments), the scene the frames read (the static set, then the trained set's rendered
+//! snapshot) in another. The evaluate pass makes the snapshot from the parameters before a
+//! forward that follows a change (one buffer copy a step, per section; a per-Gaussian
+//! function of time goes here), and its adjoint carries the backward's gradient of the
+//! snapshot to the parameters (for a copy, the identity: Adam reads the trained part of the
+//! scene's gradient as the parameters'). It costs one more copy of the trained set on the
+//! device: (11 + 3K)·4 bytes a trained Gaussian, K SH coefficients per channel (56 at
+//! degree 0, 236 at degree 3). The host reads back the loss parts
 //! ([`TrainSession::loss`]) when it wants them and the whole trained state
 //! ([`TrainSession::state`]) at checkpoints, densification and export; [`Traffic`]
 //! counts every byte the session moves between host and device.
@@ -98,6 +109,8 @@ struct View {
 /// Per-Gaussian buffers of the trained set, sized for its count.
 struct Trained {
     len: u32,
+    /// The parameters Adam updates, SoA sections of `len` ([`SceneInput::packed`]).
+    params: wgpu::Buffer,
     unit: wgpu::Buffer,
     exp_avg: wgpu::Buffer,
     exp_avg_sq: wgpu::Buffer,
@@ -120,9 +133,12 @@ pub struct TrainSession {
     placeholder: wgpu::Buffer,
     sh_coeffs: u32,
     n_static: u32,
-    /// The scene: static set then trained set, SoA sections of `capacity`.
+    /// What the frames draw: the static set, then the trained set's snapshot made by
+    /// [`Self::evaluate`]; SoA sections of `capacity`.
     scene: wgpu::Buffer,
     capacity: u32,
+    /// Whether the parameters changed since the snapshot was made.
+    snapshot_stale: bool,
     trained: Trained,
     grads: wgpu::Buffer,
     grads_extra: wgpu::Buffer,
@@ -213,8 +229,10 @@ impl TrainSession {
             n_static,
             scene: storage(&device, "scene", 0),
             capacity: 0,
+            snapshot_stale: true,
             trained: Trained {
                 len: 0,
+                params: storage(&device, "trained parameters", 0),
                 unit: storage(&device, "unit", 0),
                 exp_avg: storage(&device, "exp_avg", 0),
                 exp_avg_sq: storage(&device, "exp_avg_sq", 0),
@@ -384,7 +402,8 @@ impl TrainSession {
     }
 
     /// Makes room for `total` Gaussians (static set + trained); a larger scene buffer gets the
-    /// static set copied over on the device.
+    /// static set copied over on the device (the snapshot is made again by the next
+    /// [`Self::evaluate`]).
     fn allocate_scene(&mut self, total: u32) -> Result<(), RasterError> {
         if total <= self.capacity && self.capacity > 0 {
             return Ok(());
@@ -464,7 +483,6 @@ impl TrainSession {
             }
         }
         self.allocate_scene(self.n_static + n)?;
-        self.write_scene(self.n_static, &t.gaussians);
         let device = self.device.clone();
         let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
             let buffer = storage(&device, label, len as u64);
@@ -473,6 +491,12 @@ impl TrainSession {
             }
             buffer
         };
+        let params = fresh(
+            "trained parameters",
+            floats,
+            Some(&t.gaussians.packed()),
+            self,
+        );
         let unit = fresh("unit", nn, Some(t.unit), self);
         let exp_avg = fresh("exp_avg", floats, t.exp_avg, self);
         let exp_avg_sq = fresh("exp_avg_sq", floats, t.exp_avg_sq, self);
@@ -485,6 +509,7 @@ impl TrainSession {
         }
         self.trained = Trained {
             len: n,
+            params,
             unit,
             exp_avg,
             exp_avg_sq,
@@ -494,6 +519,7 @@ impl TrainSession {
         self.grads = storage(&device, "gradients", grad_floats);
         self.grads_extra = storage(&device, "extra gradients", grad_floats);
         self.adam_steps = t.adam_steps;
+        self.snapshot_stale = true;
         self.extra_frame = None;
         self.has_extra = false;
         Ok(())
@@ -507,6 +533,35 @@ impl TrainSession {
             sh_coeffs: self.sh_coeffs,
             n_static: self.n_static,
         }
+    }
+
+    /// The evaluate pass: makes the scene's snapshot of the trained set from its parameters
+    /// (a copy of each SoA section) where they changed since the last one. Every forward
+    /// that draws the trained set runs it first.
+    fn evaluate(&mut self) -> Result<(), RasterError> {
+        if !self.snapshot_stale {
+            return Ok(());
+        }
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let (n, mut params_at, mut scene_at) = (self.trained.len as u64, 0, 0);
+        for width in section_widths(self.sh_coeffs) {
+            let bytes = 4 * width * n;
+            if bytes > 0 {
+                let to = scene_at + 4 * width * self.n_static as u64;
+                encoder.copy_buffer_to_buffer(
+                    &self.trained.params,
+                    params_at,
+                    &self.scene,
+                    to,
+                    bytes,
+                );
+            }
+            params_at += bytes;
+            scene_at += 4 * width * self.capacity as u64;
+        }
+        self.submit(encoder)?;
+        self.snapshot_stale = false;
+        Ok(())
     }
 
     fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
@@ -551,6 +606,7 @@ impl TrainSession {
     /// also renders the static set alone from each view, which the steps then copy where no
     /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        self.evaluate()?;
         for index in 0..self.views.len() {
             let camera = self.views[index].camera;
             renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings, None)?;
@@ -591,6 +647,7 @@ impl TrainSession {
     ) -> Result<(), RasterError> {
         let v = self.view(view)?;
         let (camera, static_render) = (v.camera, v.static_render.clone());
+        self.evaluate()?;
         let frame = renderer.encode_frame(
             self.scene_buffer(),
             &camera,
@@ -669,6 +726,7 @@ impl TrainSession {
                 self.max_pixels, camera.width, camera.height
             )));
         }
+        self.evaluate()?;
         let frame =
             renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings, None)?;
         self.frame_pixels = camera.width * camera.height;
@@ -707,7 +765,6 @@ impl TrainSession {
         let layout = AdamLayout {
             n_static: self.n_static,
             n_train: self.trained.len,
-            stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
             has_extra: self.has_extra,
         };
@@ -719,7 +776,7 @@ impl TrainSession {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             let bindings = AdamBindings {
                 params: &self.adam_params,
-                scene: &self.scene,
+                trained: &self.trained.params,
                 grads: &self.grads,
                 grads_extra: &self.grads_extra,
                 exp_avg: &self.trained.exp_avg,
@@ -731,6 +788,7 @@ impl TrainSession {
                 .encode(&self.device, &mut pass, &bindings, self.trained.len);
         }
         self.has_extra = false;
+        self.snapshot_stale = true;
         self.submit(encoder)
     }
 
@@ -755,45 +813,38 @@ impl TrainSession {
         ))
     }
 
-    /// The scene's sections for Gaussians `first..first + n`, as read-back regions.
-    fn scene_regions(&self, first: u32, n: u32) -> Vec<(wgpu::Buffer, u64, u64)> {
+    /// The whole scene, static set then trained set (its parameters), packed as
+    /// [`SceneInput::packed`]: each section's static part, then its trained part.
+    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
+        let (n_static, n) = (self.n_static as u64, self.trained.len as u64);
         let mut regions = Vec::new();
-        let mut start = 0;
+        let (mut scene_at, mut params_at) = (0, 0);
         for width in section_widths(self.sh_coeffs) {
-            regions.push((
-                self.scene.clone(),
-                4 * (start + width * first as u64),
-                4 * width * n as u64,
-            ));
-            start += width * self.capacity as u64;
+            regions.push((self.scene.clone(), scene_at, 4 * width * n_static));
+            regions.push((self.trained.params.clone(), params_at, 4 * width * n));
+            scene_at += 4 * width * self.capacity as u64;
+            params_at += 4 * width * n;
         }
-        regions
-    }
-
-    fn read_scene(&mut self, first: u32, n: u32) -> Result<Vec<f32>, RasterError> {
-        let regions = self.scene_regions(first, n);
         let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
             regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
         self.read(&borrowed)
     }
 
-    /// The whole scene, static set then trained set, packed as [`SceneInput::packed`].
-    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(0, self.n_static + self.trained.len)
-    }
-
-    /// The trained set's parameters alone, packed as [`SceneInput::packed`].
+    /// The trained set's parameters, packed as [`SceneInput::packed`].
     pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(self.n_static, self.trained.len)
+        let params = self.trained.params.clone();
+        let bytes = 4 * self.floats_per_gaussian() * self.trained.len as u64;
+        self.read(&[(&params, 0, bytes)])
     }
 
     /// Reads the trained set and its optimiser state back (one round trip).
     pub fn state(&mut self) -> Result<TrainState, RasterError> {
         let n = self.trained.len as u64;
         let floats = self.floats_per_gaussian() * n;
-        let mut regions = self.scene_regions(self.n_static, self.trained.len);
         let t = &self.trained;
+        let mut regions = Vec::new();
         for (buffer, len) in [
+            (&t.params, floats),
             (&t.unit, n),
             (&t.exp_avg, floats),
             (&t.exp_avg_sq, floats),
