@@ -104,10 +104,8 @@ def peak_rss_mib() -> float:
 def worker(job: dict) -> dict:
     """One measurement in this process, with the pano4d package under ``job["python"]``."""
     sys.path.insert(0, job["python"])
-    import numpy as np
-
     from pano4d.camera import Camera
-    from pano4d.extension import camera_arrays, core
+    from pano4d.extension import core, gaussian_arrays, view
     from pano4d.renderer import adapter_info
 
     g = scene(job["n"], job["sh_degree"])
@@ -117,9 +115,9 @@ def worker(job: dict) -> dict:
                                                                           "float_atomics")}}
     try:
         # The intersection count, through the extension (pano4d.render does not show it).
-        arrays = [np.ascontiguousarray(t.reshape(-1).numpy()) for t in g.tensors().values()]
-        _, result["intersections"] = core().render_forward(
-            *arrays, *camera_arrays(cam), cam.width, cam.height, (0.0, 0.0, 0.0), False)
+        result["intersections"] = core.render_forward(
+            gaussian_arrays(g), view(cam), background=(0.0, 0.0, 0.0), antialiased=False
+        ).intersections
         _, fb = frame_fns(g, cam, "wgpu")
         result["forward_backward_ms"] = 1e3 * time_call(fb, job["repeats"], job["warm_up"])
     except (RuntimeError, ValueError) as e:

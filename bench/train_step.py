@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import json
 import os
 import platform
@@ -55,7 +56,6 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
-from pano4d import extension
 from pano4d.camera import Camera
 from pano4d.config import PRESETS
 from pano4d.gaussians import Gaussians
@@ -103,22 +103,23 @@ def wgpu_render(g: Gaussians, camera: Camera, background: Any = None) -> RenderO
 def counted_bindings() -> Iterator[list[int]]:
     """Counts the bytes of every array passed to or returned by the rasteriser's bindings."""
     total = [0]
-    core = extension.core()
+    core = importlib.import_module("pano4d._core")  # the module itself, to wrap its functions
     originals = {name: getattr(core, name) for name in ("render_forward", "render_backward")}
 
     def size(value: Any) -> int:
         if isinstance(value, np.ndarray):
             return value.nbytes
-        if isinstance(value, dict):
-            return sum(size(v) for v in value.values())
-        if isinstance(value, tuple):
-            return sum(size(v) for v in value)
+        if isinstance(value, core.GaussianArrays):
+            arrays = (value.means, value.log_scales, value.quats, value.opacity_logits, value.sh)
+            return sum(a.nbytes for a in arrays)
+        if isinstance(value, core.RasterOutput):
+            return value.pixels.nbytes
         return 0
 
     def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
-        def counted(*args: Any) -> Any:
-            out = fn(*args)
-            total[0] += sum(size(a) for a in args) + size(out)
+        def counted(*args: Any, **kwargs: Any) -> Any:
+            out = fn(*args, **kwargs)
+            total[0] += sum(size(a) for a in (*args, *kwargs.values())) + size(out)
             return out
 
         return counted
@@ -130,6 +131,11 @@ def counted_bindings() -> Iterator[list[int]]:
     finally:
         for name, fn in originals.items():
             setattr(core, name, fn)
+
+
+def moved_bytes(before: Any, after: Any) -> int:
+    """Bytes uploaded and read back between two of a session's ``traffic()`` readings."""
+    return after.uploaded - before.uploaded + after.read_back - before.read_back
 
 
 def time_steps(trainer: Any, steps: int, finish: Callable[[], Any]) -> float:
@@ -150,7 +156,7 @@ def resident_row(g: Gaussians, views: TrainViews, knobs: Knobs, steps: int) -> d
     after = session.traffic()
     # The two loss read-backs around the timing are the benchmark's, not the loop's.
     loss_bytes = 2 * 7 * 4
-    moved = sum(after) - sum(before) - loss_bytes
+    moved = moved_bytes(before, after) - loss_bytes
     return {"seconds": seconds, "bytes": moved / (steps + 1)}
 
 
@@ -166,7 +172,7 @@ def semantic_row(
     before = session.traffic()
     seconds = time_steps(trainer, steps, session.loss)
     after = session.traffic()
-    moved = sum(after) - sum(before) - 2 * 7 * 4  # less the benchmark's own loss reads
+    moved = moved_bytes(before, after) - 2 * 7 * 4  # less the benchmark's own loss reads
     return {"seconds": seconds, "bytes": moved / (steps + 1)}
 
 

@@ -16,7 +16,7 @@ import torch
 from sphere_problem import sphere_problem
 
 from pano4d.camera import Camera
-from pano4d.extension import camera_arrays, core, flat
+from pano4d.extension import core, flat, gaussian_arrays, gaussians_from, view
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import (
     OUTSIDE_SUMS,
@@ -30,7 +30,7 @@ from pano4d.lift.optimize import (
 )
 from pano4d.lift.pipeline import make_trainer
 from pano4d.lift.random_dinov2 import random_feature_model
-from pano4d.lift.resident import ResidentTrainer, pack, train_settings, unpack
+from pano4d.lift.resident import ResidentTrainer, train_settings
 from pano4d.renderer import MIN_ALPHA_FOR_DEPTH, RenderOutput, render
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -87,25 +87,32 @@ def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> A
         torch.zeros(1),
         torch.zeros(1, 1, 3),
     )
-    targets = []
-    for i, c in enumerate(views.cameras):
-        previous = None if views.previous is None else flat(views.previous[i])
-        targets.append((
-            *camera_arrays(c), c.width, c.height, flat(views.targets[i]), flat(views.weights[i]),
-            flat(views.depth[i]), previous, float(views.weights[i].sum().clamp(min=1e-6)),
-            [0.0] * len(OUTSIDE_SUMS),
-        ))  # fmt: skip
+    targets = [
+        core.ViewTarget(
+            view=view(c),
+            rgb=flat(views.targets[i]),
+            weight=flat(views.weights[i]),
+            depth=flat(views.depth[i]),
+            previous=None if views.previous is None else flat(views.previous[i]),
+            weight_sum=float(views.weights[i].sum().clamp(min=1e-6)),
+            outside_sums=[0.0] * len(OUTSIDE_SUMS),
+        )
+        for i, c in enumerate(views.cameras)
+    ]
     defaults = train_settings(Knobs(iterations=1))
     l1, ssim, temporal, geo = lambdas
-    settings = core().TrainSettings(
+    settings = core.TrainSettings(
         learning_rates=defaults.learning_rates, betas=defaults.betas, eps=defaults.eps,
         lambda_l1=l1, lambda_ssim=ssim, lambda_temporal=temporal, lambda_geo=geo,
         background=defaults.background,
     )  # fmt: skip
-    return core().TrainSession(
-        pack(Gaussians.empty(0)), 0, pack(g), np.ones(1, np.float32), targets, settings
+    return core.TrainSession(
+        static_set=gaussian_arrays(Gaussians.empty(0)),
+        trained=gaussian_arrays(g),
+        unit=np.ones(1, np.float32),
+        views=targets,
+        settings=settings,
     )
-
 
 
 def _torch_gradient(views: TrainViews, pixels: torch.Tensor, knobs: Knobs) -> torch.Tensor:
@@ -119,10 +126,11 @@ def _torch_gradient(views: TrainViews, pixels: torch.Tensor, knobs: Knobs) -> to
 
 def _device_gradient(
     views: TrainViews, pixels: torch.Tensor, lambdas: tuple[float, float, float, float]
-) -> tuple[torch.Tensor, list[float]]:
+) -> tuple[torch.Tensor, Any]:
+    """The device's pixel gradient and its LossParts."""
     session = _session(views, lambdas)
-    grad, parts = session.loss_gradient(0, flat(pixels))
-    return torch.from_numpy(grad).reshape(pixels.shape), parts
+    out = session.loss_gradient(0, flat(pixels))
+    return torch.from_numpy(out.pixel_gradient).reshape(pixels.shape), out.parts
 
 
 def _assert_close(device: torch.Tensor, reference: torch.Tensor, what: str) -> None:
@@ -173,8 +181,8 @@ def test_each_loss_terms_pixel_gradient_matches_torch_autograd(size: tuple[int, 
     _assert_close(device, _torch_gradient(views, pixels, knobs), "all terms")
     out = _output(pixels)
     trainer = GaussianTrainer(Gaussians.empty(0), views, knobs, lambda *_: out)
-    assert parts[0] == pytest.approx(float(trainer.loss_at(0)), rel=1e-5)
-    assert parts[6] == 1.0  # L_geo applied
+    assert parts.total == pytest.approx(float(trainer.loss_at(0)), rel=1e-5)
+    assert parts.geo_applied
 
 
 def test_geo_loss_follows_the_coverage_rule() -> None:
@@ -186,7 +194,7 @@ def test_geo_loss_follows_the_coverage_rule() -> None:
     knobs = Knobs(iterations=1, lambda_geo=0.05)
     device, parts = _device_gradient(views, pixels, (L1, DSSIM, 0.0, 0.05))
     reference = _torch_gradient(views, pixels, knobs)
-    assert parts[6] == 0.0 and parts[5] == pytest.approx(covered)
+    assert not parts.geo_applied and parts.covered_weight == pytest.approx(covered)
     assert float(device[..., 3:].abs().max()) == 0.0 == float(reference[..., 3:].abs().max())
     _assert_close(device, reference, "rgb terms without L_geo")
 
@@ -225,7 +233,7 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
         scale = 10.0 ** -(step % 3)
         grads = _gaussians(n_all, 1, seed=10 + step).map(lambda t, s=scale: t * s)
         grads.opacity_logits[len(context)] = 0.0  # a zero gradient: moments decay, no NaN
-        resident._session.apply_gradients(pack(grads))
+        resident._session.apply_gradients(gaussian_arrays(grads))
         g = grads[len(context):]
         p = reference.params
         p["offsets"].grad = g.means * reference.unit[:, None]  # autograd's d/d offsets
@@ -260,7 +268,7 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
     # non-zero.
     torch.testing.assert_close(state["grad_accum"], norms, rtol=4 * ulp, atol=0)
     assert torch.equal(state["grad_count"], torch.full((len(trained),), 5.0))
-    scene = unpack(resident._session.scene(), n_all, 4, torch.device("cpu"))
+    scene = gaussians_from(resident._session.scene())
     for name, t in scene[: len(context)].tensors().items():
         assert torch.equal(t, context.tensors()[name]), name
 
@@ -438,7 +446,7 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(kind: str) -
     assert not bool(new_accum.any()) and not bool(new_count.any())
     if isinstance(trainer, ResidentTrainer):
         assert trainer._state()["adam_steps"] == 3
-        scene = unpack(trainer._session.scene(), len(context) + len(after), 4, torch.device("cpu"))
+        scene = gaussians_from(trainer._session.scene())
         kept = scene[: len(context)]
     else:
         assert all(float(s["step"]) == 3 for s in trainer.optimiser.state.values())
@@ -483,7 +491,8 @@ def test_a_step_moves_no_gaussians_between_host_and_device() -> None:
     steps = 20
     for _ in range(steps):
         trainer.train_step()
-    uploaded, read_back = (a - b for a, b in zip(trainer._session.traffic(), start, strict=True))
+    end = trainer._session.traffic()
+    uploaded, read_back = end.uploaded - start.uploaded, end.read_back - start.read_back
     assert 0 < uploaded <= 128 * steps
     assert 0 < read_back <= 2 * (7 * 4 + 4 * 4)  # two loss reads, two frame checks
     assert math.isfinite(trainer.last_loss)
@@ -518,7 +527,7 @@ def test_scene_yaml_overrides_reach_the_device_session(tmp_path: Any) -> None:
     assert got.learning_rates["quats"] == Knobs(iterations=1).lr_rotation  # left alone
     assert got.betas == pytest.approx((0.9, 0.999)) and got.eps == 1e-15
     with pytest.raises(ValueError, match="missing"):
-        core().TrainSettings(**{**_settings_kwargs(got), "learning_rates": {"offsets": 1.0}})
+        core.TrainSettings(**{**_settings_kwargs(got), "learning_rates": {"offsets": 1.0}})
 
 
 def _settings_kwargs(settings: Any) -> dict[str, Any]:

@@ -119,7 +119,7 @@ class Gaussians:
             z(0, k, 3, device=device),
         )
 
-    # --- numpy interchange with the Rust extension (float32, C-contiguous) --------------
+    # --- numpy interchange (float32, C-contiguous): checkpoints, pano4d.extension ---------
     def to_numpy(self) -> dict[str, np.ndarray]:
         return {
             k: np.ascontiguousarray(v.detach().cpu().to(torch.float32).numpy())

@@ -1,7 +1,8 @@
 """3DGS ``.ply`` files and the ``.ply4d`` 4D scene format (spec: docs/ply4d.md).
 
-The reading and writing happen in Rust (``pano4d._core``); this module converts between
-its float32 numpy arrays and :class:`~pano4d.gaussians.Gaussians`. Format errors raise
+The reading and writing happen in Rust (``pano4d._core``, through ``pano4d.extension``);
+sets cross as its ``GaussianArrays``, converted to and from
+:class:`~pano4d.gaussians.Gaussians` by ``pano4d.extension``. Format errors raise
 ``FormatError`` (a ``ValueError``) and operating-system errors ``OSError``, both with the
 Rust message, which names the file; a timestamp out of range raises ``TimeIndexError``.
 Every write is atomic (temporary file in the same folder, fsync, rename).
@@ -17,8 +18,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from pano4d import __version__, _core
+from pano4d import __version__
 from pano4d.errors import InputError
+from pano4d.extension import core, gaussian_arrays, gaussians_from
 from pano4d.gaussians import Gaussians
 
 __all__ = [
@@ -60,12 +62,12 @@ def _format_errors() -> Iterator[None]:
 def read_ply(path: PathLike) -> Gaussians:
     """Read a standard 3DGS ``.ply`` or a SuperSplat ``.compressed.ply`` (CPU tensors)."""
     with _format_errors():
-        return Gaussians.from_numpy(_core.read_ply(os.fspath(path)))
+        return gaussians_from(core.read_ply(os.fspath(path)))
 
 
 def write_ply(path: PathLike, g: Gaussians) -> None:
     """Write ``g`` as a standard binary 3DGS ``.ply`` (float32, bit-exact on read-back)."""
-    _core.write_ply(os.fspath(path), g.to_numpy())
+    core.write_ply(os.fspath(path), gaussian_arrays(g))
 
 
 def _default_camera() -> dict[str, Any]:
@@ -158,7 +160,7 @@ class Ply4dWriter:
     def __init__(self, path: PathLike, static: Gaussians) -> None:
         self.sh_degree = static.sh_degree
         self.num_times = 0
-        self._writer = _core.Ply4dWriter(os.fspath(path), static.to_numpy())
+        self._writer = core.Ply4dWriter(os.fspath(path), gaussian_arrays(static))
 
     def push(self, g: Gaussians) -> None:
         """Append the dynamic set of the next timestamp."""
@@ -167,7 +169,7 @@ class Ply4dWriter:
                 f"dynamic set {self.num_times} has SH degree {g.sh_degree}, above the static "
                 f"set's {self.sh_degree}"
             )
-        self._writer.push(g.with_sh_degree(self.sh_degree).to_numpy())
+        self._writer.push(gaussian_arrays(g.with_sh_degree(self.sh_degree)))
         self.num_times += 1
 
     def finish(
@@ -217,7 +219,7 @@ class Ply4dFile:
     def __init__(self, path: PathLike) -> None:
         self.path = os.fspath(path)
         with _format_errors():
-            self._reader = _core.Ply4dReader(self.path)
+            self._reader = core.Ply4dReader(self.path)
             self.header: dict[str, Any] = json.loads(self._reader.header_json())
 
     @property
@@ -230,18 +232,18 @@ class Ply4dFile:
 
     def static(self) -> Gaussians:
         with _format_errors():
-            return Gaussians.from_numpy(self._reader.read_static())
+            return gaussians_from(self._reader.read_static())
 
     def dynamic(self, t: int) -> Gaussians:
         _check_time(t, self.num_times)
         with _format_errors():
-            return Gaussians.from_numpy(self._reader.read_dynamic(t))
+            return gaussians_from(self._reader.read_dynamic(t))
 
     def at(self, t: int) -> Gaussians:
         """Static followed by dynamic set ``t``."""
         _check_time(t, self.num_times)
         with _format_errors():
-            return Gaussians.from_numpy(self._reader.read_at(t))
+            return gaussians_from(self._reader.read_at(t))
 
     def verify(self) -> None:
         """Check every section's checksum; raises FormatError on the first mismatch."""

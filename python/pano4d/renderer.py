@@ -17,7 +17,7 @@ from typing import Any
 import torch
 
 from pano4d.camera import Camera
-from pano4d.extension import camera_arrays, core, flat
+from pano4d.extension import core, flat, gaussian_arrays, view
 from pano4d.gaussians import Gaussians
 from pano4d.raster_torch import render_torch
 
@@ -35,7 +35,7 @@ class RenderOutput:
 
 def adapter_info() -> dict[str, str]:
     """The GPU adapter the wgpu backend uses: name, backend, device_type, driver."""
-    return dict(core().adapter_info())
+    return dict(core.adapter_info())
 
 
 class _WgpuRasterize(torch.autograd.Function):
@@ -54,31 +54,31 @@ class _WgpuRasterize(torch.autograd.Function):
         sh: torch.Tensor,
     ) -> torch.Tensor:
         tensors = (means, log_scales, quats, opacity_logits, sh)
-        arrays = [flat(t) for t in tensors]
-        pixels, _ = core().render_forward(
-            *arrays, *camera_arrays(camera), camera.width, camera.height, background, antialiased
+        out = core.render_forward(
+            gaussian_arrays(Gaussians(*tensors)),
+            view(camera),
+            background=background,
+            antialiased=antialiased,
         )
         ctx.camera, ctx.background, ctx.antialiased = camera, background, antialiased
         ctx.save_for_backward(*tensors)
-        out = torch.from_numpy(pixels).reshape(camera.height, camera.width, 5)
-        return out.to(means.device)
+        pixels = torch.from_numpy(out.pixels).reshape(camera.height, camera.width, 5)
+        return pixels.to(means.device)
 
     @staticmethod
     def backward(ctx: Any, v_out: torch.Tensor) -> tuple[torch.Tensor | None, ...]:  # type: ignore[override]
         tensors = ctx.saved_tensors
-        grads = core().render_backward(
-            *[flat(t) for t in tensors],
-            *camera_arrays(ctx.camera),
-            ctx.camera.width,
-            ctx.camera.height,
-            ctx.background,
-            ctx.antialiased,
-            flat(v_out),
+        grads = core.render_backward(
+            gaussian_arrays(Gaussians(*tensors)),
+            view(ctx.camera),
+            background=ctx.background,
+            antialiased=ctx.antialiased,
+            v_pixels=flat(v_out),
         )
-        names = ("means", "log_scales", "quats", "opacity_logits", "sh")
+        by_name = (grads.means, grads.log_scales, grads.quats, grads.opacity_logits, grads.sh)
         out = [
-            torch.from_numpy(grads[name]).reshape(t.shape).to(device=t.device, dtype=t.dtype)
-            for name, t in zip(names, tensors, strict=True)
+            torch.from_numpy(g).to(device=t.device, dtype=t.dtype)
+            for g, t in zip(by_name, tensors, strict=True)
         ]
         return (None, None, None, *out)
 

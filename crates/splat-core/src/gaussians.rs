@@ -58,6 +58,36 @@ impl GaussianSet {
         self.sh.extend_from_slice(&other.sh);
     }
 
+    /// The inverse of [`SceneInput::packed`]: `n` Gaussians of `sh_degree` from the SoA
+    /// sections (means, log-scales, quaternions, opacity logits, SH) laid end to end.
+    /// Panics when `packed` is not that long (the caller laid it out).
+    pub fn from_packed(packed: &[f32], n: usize, sh_degree: u32) -> Self {
+        let k = sh_coeffs(sh_degree);
+        assert_eq!(
+            packed.len(),
+            n * (BASE_FLOATS + 3 * k),
+            "packed Gaussians' length"
+        );
+        let (means, rest) = packed.split_at(3 * n);
+        let (log_scales, rest) = rest.split_at(3 * n);
+        let (quats, rest) = rest.split_at(4 * n);
+        let (opacity_logits, sh) = rest.split_at(n);
+        let rows = |values: &[f32]| -> Vec<[f32; 3]> {
+            values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+        };
+        Self {
+            sh_degree,
+            means: rows(means),
+            log_scales: rows(log_scales),
+            quats: quats
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect(),
+            opacity_logits: opacity_logits.to_vec(),
+            sh: sh.to_vec(),
+        }
+    }
+
     /// Checks that every array has the length `len()` implies.
     pub fn validate(&self) -> Result<(), String> {
         let n = self.len();

@@ -19,17 +19,21 @@ step (``sem_every = 1``, as the torch trainer) unless ``sem_every`` is raised.
 happen on the device) and its public methods, so a lifting stage can use either. Its knobs
 reach the device as one typed object, ``pano4d._core.TrainSettings`` (``train_settings``).
 ``train_step`` returns the last loss read back, which is up to ``LOSS_EVERY − 1`` steps old.
+
+Everything crosses to the device as a typed object (``pano4d._core``'s stub lists them):
+each view's targets as a ``ViewTarget``, the static and trained sets, Adam's moments and
+gradients as ``GaussianArrays`` (``pano4d.extension``), and the loss comes back as
+``LossParts``, read by name.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pano4d.extension import camera_arrays, core, flat
+from pano4d.extension import core, flat, gaussian_arrays, gaussians_from, view
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import (
     ADAM_BETAS,
@@ -46,11 +50,13 @@ from pano4d.lift.optimize import (
 LOSS_EVERY = 10  # steps between loss read-backs (the progress bar's figure)
 
 
-def train_settings(knobs: Knobs, background: tuple[float, ...] = (0.0, 0.0, 0.0)) -> Any:
+def train_settings(
+    knobs: Knobs, background: tuple[float, ...] = (0.0, 0.0, 0.0)
+) -> core.TrainSettings:
     """What the device's loop needs of ``knobs``, as ``pano4d._core.TrainSettings`` (the Rust
     ``TrainConfig``): learning rates per group, Adam's β and ε, the weights of L1, D-SSIM,
     L_temporal and L_geo (L_sem runs on the host) and the background."""
-    return core().TrainSettings(
+    return core.TrainSettings(
         learning_rates=learning_rates(knobs),
         betas=ADAM_BETAS,
         eps=ADAM_EPS,
@@ -62,27 +68,6 @@ def train_settings(knobs: Knobs, background: tuple[float, ...] = (0.0, 0.0, 0.0)
     )
 
 
-def pack(g: Gaussians) -> np.ndarray:
-    """The Gaussians as one float32 array in the shaders' SoA order (means, log-scales,
-    quaternions, opacity logits, SH)."""
-    parts = [t.detach().to("cpu", torch.float32).reshape(-1) for t in g.tensors().values()]
-    return np.ascontiguousarray(torch.cat(parts).numpy())
-
-
-def unpack(packed: np.ndarray, n: int, sh_coeffs: int, device: torch.device) -> Gaussians:
-    """Inverse of :func:`pack` for ``n`` Gaussians with ``sh_coeffs`` per channel."""
-    values = torch.from_numpy(np.asarray(packed, dtype=np.float32)).to(device)
-    sizes = [3 * n, 3 * n, 4 * n, n, 3 * sh_coeffs * n]
-    means, log_scales, quats, opacity, sh = values.split(sizes)
-    return Gaussians(
-        means.reshape(n, 3),
-        log_scales.reshape(n, 3),
-        quats.reshape(n, 4),
-        opacity.reshape(n),
-        sh.reshape(n, sh_coeffs, 3),
-    )
-
-
 class ResidentTrainer(Trainer):
     """Optimises one set of Gaussians (optionally against a frozen context) on the GPU."""
 
@@ -91,7 +76,6 @@ class ResidentTrainer(Trainer):
 
     def _start(self, gaussians: Gaussians) -> None:
         g = gaussians.detach()
-        self._sh_coeffs = g.sh.shape[1]
         ctx = Gaussians.empty(g.sh_degree) if self.context is None else self.context
         if ctx.sh_degree > g.sh_degree:
             raise ValueError(
@@ -101,36 +85,30 @@ class ResidentTrainer(Trainer):
         ctx = ctx.with_sh_degree(g.sh_degree)
         bg = torch.zeros(3) if self.background is None else torch.as_tensor(self.background)
         unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
-        self._session = core().TrainSession(
-            pack(ctx),
-            len(ctx),
-            pack(g),
-            flat(unit),
-            self._view_targets(),
-            train_settings(self.knobs, tuple(float(v) for v in bg.reshape(-1))),
+        self._session = core.TrainSession(
+            static_set=gaussian_arrays(ctx),
+            trained=gaussian_arrays(g),
+            unit=flat(unit),
+            views=self._view_targets(),
+            settings=train_settings(self.knobs, tuple(float(v) for v in bg.reshape(-1))),
         )
         self._session.reserve_frames()
 
-    def _view_targets(self) -> list[tuple[Any, ...]]:
+    def _view_targets(self) -> list[core.ViewTarget]:
         v, k = self.views, self.knobs
         temporal = k.lambda_temporal > 0 and v.previous is not None
-        out = []
-        for i, camera in enumerate(v.cameras):
-            weight = v.weights[i]
-            out.append(
-                (
-                    *camera_arrays(camera),
-                    camera.width,
-                    camera.height,
-                    flat(v.targets[i]),
-                    flat(weight),
-                    flat(v.depth[i]) if k.lambda_geo > 0 else None,
-                    flat(v.previous[i]) if temporal and v.previous is not None else None,
-                    float(v.weight_sum(i)),
-                    [float(x) for x in v.outside_sums(i)],
-                )
+        return [
+            core.ViewTarget(
+                view=view(camera),
+                rgb=flat(v.targets[i]),
+                weight=flat(v.weights[i]),
+                depth=flat(v.depth[i]) if k.lambda_geo > 0 else None,
+                previous=flat(v.previous[i]) if temporal and v.previous is not None else None,
+                weight_sum=float(v.weight_sum(i)),
+                outside_sums=[float(x) for x in v.outside_sums(i)],
             )
-        return out
+            for i, camera in enumerate(v.cameras)
+        ]
 
     # --- one step --------------------------------------------------------------------------
     def train_step(self) -> float:
@@ -149,27 +127,28 @@ class ResidentTrainer(Trainer):
         self.step += 1
         if sem or self.step % LOSS_EVERY == 0 or self.step >= k.iterations:
             loss = self._session.loss()
-            self.last_loss = float(loss[0]) + sem_loss
+            self.last_loss = loss.total + sem_loss
             self.last_terms = self._terms(loss, sem_loss if sem else None)
             # Steps do not wait for their intersection counts: a frame that outgrew the
             # renderer's room drew only the background (no gradient that step). Counted
             # here, and the room grows before the next frames.
-            self.overflowed_frames += self._session.check_frames()[0]
+            self.overflowed_frames += self._session.check_frames().overflowed
         if densify_due(k, self.step):
             self.densify_and_prune()
         return self.last_loss
 
-    def _terms(self, loss: list[float], sem_loss: float | None) -> dict[str, float | torch.Tensor]:
-        """GaussianTrainer.last_terms from TrainSession.loss() ([L, L1, 1 − SSIM, L_temporal,
-        1 − Pearson, covered weight, whether L_geo applied]) and this step's λ_sem·L_sem."""
+    def _terms(
+        self, loss: core.LossParts, sem_loss: float | None
+    ) -> dict[str, float | torch.Tensor]:
+        """GaussianTrainer.last_terms from TrainSession.loss() and this step's λ_sem·L_sem."""
         k = self.knobs
         terms: dict[str, float | torch.Tensor] = {
-            "total": loss[0] + (sem_loss or 0.0), "l1": loss[1], "d_ssim": loss[2]
+            "total": loss.total + (sem_loss or 0.0), "l1": loss.l1, "d_ssim": loss.d_ssim
         }
         if k.lambda_temporal > 0 and self.views.previous is not None:
-            terms["temporal"] = loss[3]
-        if loss[6] > 0:
-            terms["geo"] = loss[4]
+            terms["temporal"] = loss.temporal
+        if loss.geo_applied:
+            terms["geo"] = loss.one_minus_pearson
         if sem_loss is not None:
             terms["sem"] = sem_loss / k.lambda_sem
         return terms
@@ -185,7 +164,7 @@ class ResidentTrainer(Trainer):
         centre = torch.from_numpy(s.read_render()).reshape(h, w, 5)[..., :3].to(self.device)
         delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
         moved = moved_camera(camera, delta * alpha * k.sem_scale)
-        pixels = torch.from_numpy(s.render_at(*camera_arrays(moved), w, h)).reshape(h, w, 5)
+        pixels = torch.from_numpy(s.render_at(view(moved))).reshape(h, w, 5)
         moved_rgb = pixels[..., :3].to(self.device).requires_grad_(True)
         loss = k.lambda_sem * (
             1 - F.cosine_similarity(self.features.cls(centre), self.features.cls(moved_rgb), dim=0)
@@ -202,12 +181,15 @@ class ResidentTrainer(Trainer):
     def _state(self) -> dict[str, Any]:
         """The trained set and its optimiser state, read back (one round trip)."""
         raw = self._session.state()
-        n, k = len(raw["unit"]), self._sh_coeffs
-        out: dict[str, Any] = {"adam_steps": int(raw["adam_steps"])}
-        for key in ("params", "exp_avg", "exp_avg_sq"):
-            out[key] = unpack(raw[key], n, k, self.device)
-        for key in ("unit", "grad_accum", "grad_count"):
-            out[key] = torch.from_numpy(raw[key]).to(self.device)
+        out: dict[str, Any] = {"adam_steps": raw.adam_steps}
+        for key, arrays in (
+            ("params", raw.params), ("exp_avg", raw.exp_avg), ("exp_avg_sq", raw.exp_avg_sq)
+        ):
+            out[key] = gaussians_from(arrays, self.device)
+        for key, values in (
+            ("unit", raw.unit), ("grad_accum", raw.grad_accum), ("grad_count", raw.grad_count)
+        ):
+            out[key] = torch.from_numpy(values).to(self.device)
         return out
 
     def _upload(
@@ -221,18 +203,18 @@ class ResidentTrainer(Trainer):
         adam_steps: int,
     ) -> None:
         self._session.set_trained(
-            pack(g),
-            flat(unit),
-            None if exp_avg is None else pack(exp_avg),
-            None if exp_avg_sq is None else pack(exp_avg_sq),
-            None if grad_accum is None else flat(grad_accum),
-            None if grad_count is None else flat(grad_count),
-            adam_steps,
+            trained=gaussian_arrays(g),
+            unit=flat(unit),
+            exp_avg=None if exp_avg is None else gaussian_arrays(exp_avg),
+            exp_avg_sq=None if exp_avg_sq is None else gaussian_arrays(exp_avg_sq),
+            grad_accum=None if grad_accum is None else flat(grad_accum),
+            grad_count=None if grad_count is None else flat(grad_count),
+            adam_steps=adam_steps,
         )
         self._session.reserve_frames()
 
     def result(self) -> Gaussians:
-        return unpack(self._session.params(), len(self._session), self._sh_coeffs, self.device)
+        return gaussians_from(self._session.params(), self.device)
 
     # --- densify and prune ------------------------------------------------------------------
     def densify_and_prune(self) -> None:

@@ -1,4 +1,6 @@
-//! Python bindings of the rasteriser: `render_forward`, `render_backward`, `adapter_info`.
+//! Python bindings of the rasteriser: the camera a render is seen by (`View`),
+//! `render_forward` (a `RasterOutput`), `render_backward` (gradients as `GaussianArrays`),
+//! `adapter_info`.
 //!
 //! One process-wide [`Renderer`] (device, pipelines, buffers) is created on first use
 //! and reused; calls are serialised by a mutex and run with the GIL released.
@@ -10,8 +12,8 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use super::gaussians::PyGaussianArrays;
 use crate::camera::Camera;
-use crate::gaussians::SceneInput;
 use crate::raster::{GpuContext, RasterError, RenderSettings, Renderer};
 
 static RENDERER: OnceLock<Mutex<Option<Renderer>>> = OnceLock::new();
@@ -37,26 +39,56 @@ pub(super) fn with_renderer<T>(
     f(guard.as_mut().expect("created above"))
 }
 
-pub(super) fn camera_from(
-    k: &PyReadonlyArray2<'_, f64>,
-    w2c: &PyReadonlyArray2<'_, f64>,
-    half_fov_tan: [f64; 2],
-    width: u32,
-    height: u32,
-) -> PyResult<Camera> {
-    let k = k.as_array();
-    let w2c = w2c.as_array();
-    if k.shape() != [3, 3] || w2c.shape()[1] != 4 || !(3..=4).contains(&w2c.shape()[0]) {
-        return Err(PyValueError::new_err(
-            "K must be 3x3 and world_to_cam 3x4 or 4x4",
-        ));
+/// A pinhole camera as the renderer takes it (`pano4d.camera.Camera`'s K, world-to-camera
+/// rows, the tan of its view's half field of view and its size in pixels), built by keyword
+/// by `pano4d.extension.view`.
+#[pyclass(name = "View", module = "pano4d._core", frozen)]
+pub struct PyView {
+    pub(super) camera: Camera,
+}
+
+#[pymethods]
+impl PyView {
+    /// `k`: 3×3 intrinsics; `world_to_cam`: 3×4 or 4×4 rows, float64; `half_fov_tan`: the
+    /// (x, y) tan of the half field of view of the whole view (a window keeps its view's).
+    #[new]
+    #[pyo3(signature = (*, k, world_to_cam, half_fov_tan, width, height))]
+    fn new(
+        k: PyReadonlyArray2<'_, f64>,
+        world_to_cam: PyReadonlyArray2<'_, f64>,
+        half_fov_tan: [f64; 2],
+        width: u32,
+        height: u32,
+    ) -> PyResult<Self> {
+        let k = k.as_array();
+        let w2c = world_to_cam.as_array();
+        if k.shape() != [3, 3] || w2c.shape()[1] != 4 || !(3..=4).contains(&w2c.shape()[0]) {
+            return Err(PyValueError::new_err(
+                "K must be 3x3 and world_to_cam 3x4 or 4x4",
+            ));
+        }
+        let kk = std::array::from_fn(|r| std::array::from_fn(|c| k[[r, c]]));
+        let ww = std::array::from_fn(|r| std::array::from_fn(|c| w2c[[r, c]]));
+        let camera = Camera {
+            half_fov_tan: half_fov_tan.into(),
+            ..Camera::from_matrices(kk, ww, width, height)
+        };
+        Ok(Self { camera })
     }
-    let kk = std::array::from_fn(|r| std::array::from_fn(|c| k[[r, c]]));
-    let ww = std::array::from_fn(|r| std::array::from_fn(|c| w2c[[r, c]]));
-    Ok(Camera {
-        half_fov_tan: half_fov_tan.into(),
-        ..Camera::from_matrices(kk, ww, width, height)
-    })
+
+    #[getter]
+    fn width(&self) -> u32 {
+        self.camera.width
+    }
+
+    #[getter]
+    fn height(&self) -> u32 {
+        self.camera.height
+    }
+
+    fn __repr__(&self) -> String {
+        format!("View(<{}x{}>)", self.camera.width, self.camera.height)
+    }
 }
 
 pub(super) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResult<&'a [f32]> {
@@ -64,97 +96,89 @@ pub(super) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f32>) -> PyResul
         .map_err(|_| PyValueError::new_err(format!("{name} must be a C-contiguous float32 array")))
 }
 
-/// Borrows the five flat float32 arrays as a [`SceneInput`].
-fn scene<'a>(
-    means: &'a PyReadonlyArray1<'_, f32>,
-    log_scales: &'a PyReadonlyArray1<'_, f32>,
-    quats: &'a PyReadonlyArray1<'_, f32>,
-    opacity_logits: &'a PyReadonlyArray1<'_, f32>,
-    sh: &'a PyReadonlyArray1<'_, f32>,
-) -> PyResult<SceneInput<'a>> {
-    Ok(SceneInput {
-        means: slice("means", means)?,
-        log_scales: slice("log_scales", log_scales)?,
-        quats: slice("quats", quats)?,
-        opacity_logits: slice("opacity_logits", opacity_logits)?,
-        sh: slice("sh", sh)?,
+/// A frame rendered by [`render_forward`].
+#[pyclass(name = "RasterOutput", module = "pano4d._core", frozen)]
+pub struct PyRasterOutput {
+    pixels: Py<PyArray1<f32>>,
+    intersections: u32,
+}
+
+#[pymethods]
+impl PyRasterOutput {
+    /// H·W·5 float32: r, g, b, alpha, Σ z·α·T per pixel.
+    #[getter]
+    fn pixels(&self, py: Python<'_>) -> Py<PyArray1<f32>> {
+        self.pixels.clone_ref(py)
+    }
+
+    /// The frame's (Gaussian, tile) intersections.
+    #[getter]
+    fn intersections(&self) -> u32 {
+        self.intersections
+    }
+}
+
+fn render_settings(background: [f32; 3], antialiased: bool) -> RenderSettings {
+    RenderSettings {
+        background,
+        antialiased,
+        ..Default::default()
+    }
+}
+
+/// Renders `gaussians` seen by `view`.
+#[pyfunction]
+#[pyo3(signature = (gaussians, view, *, background, antialiased))]
+fn render_forward(
+    py: Python<'_>,
+    gaussians: PyRef<'_, PyGaussianArrays>,
+    view: PyRef<'_, PyView>,
+    background: [f32; 3],
+    antialiased: bool,
+) -> PyResult<PyRasterOutput> {
+    let (input, camera) = (gaussians.input(), view.camera);
+    let settings = render_settings(background, antialiased);
+    let (pixels, intersections) = py
+        .detach(|| with_renderer(|r| r.forward(&input, &camera, &settings)))
+        .map_err(to_py)?;
+    Ok(PyRasterOutput {
+        pixels: PyArray1::from_vec(py, pixels).unbind(),
+        intersections,
     })
 }
 
-/// Renders; returns (H*W*5 float32: r, g, b, alpha, sum z*alpha*T; intersection count).
+/// The gradients of a loss w.r.t. each array of `gaussians` (in their shapes), given its
+/// gradient w.r.t. render_forward's pixels (`v_pixels`, H·W·5).
 #[pyfunction]
-#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, half_fov_tan, width, height, background, antialiased))]
-#[allow(clippy::too_many_arguments)]
-fn render_forward<'py>(
-    py: Python<'py>,
-    means: PyReadonlyArray1<'py, f32>,
-    log_scales: PyReadonlyArray1<'py, f32>,
-    quats: PyReadonlyArray1<'py, f32>,
-    opacity_logits: PyReadonlyArray1<'py, f32>,
-    sh: PyReadonlyArray1<'py, f32>,
-    k: PyReadonlyArray2<'py, f64>,
-    world_to_cam: PyReadonlyArray2<'py, f64>,
-    half_fov_tan: [f64; 2],
-    width: u32,
-    height: u32,
+#[pyo3(signature = (gaussians, view, *, background, antialiased, v_pixels))]
+fn render_backward(
+    py: Python<'_>,
+    gaussians: PyRef<'_, PyGaussianArrays>,
+    view: PyRef<'_, PyView>,
     background: [f32; 3],
     antialiased: bool,
-) -> PyResult<(Bound<'py, PyArray1<f32>>, u32)> {
-    let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
-    let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
-    let settings = RenderSettings {
-        background,
-        antialiased,
-        ..Default::default()
-    };
-    let (pixels, isects) = py
-        .detach(|| with_renderer(|r| r.forward(&input, &camera, &settings)))
-        .map_err(to_py)?;
-    Ok((PyArray1::from_vec(py, pixels), isects))
-}
-
-/// Gradients w.r.t. (means, log_scales, quats, opacity_logits, sh), flat float32, given
-/// the gradient of the loss w.r.t. render_forward's output (same layout).
-#[pyfunction]
-#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, half_fov_tan, width, height, background, antialiased, v_pixels))]
-#[allow(clippy::too_many_arguments)]
-fn render_backward<'py>(
-    py: Python<'py>,
-    means: PyReadonlyArray1<'py, f32>,
-    log_scales: PyReadonlyArray1<'py, f32>,
-    quats: PyReadonlyArray1<'py, f32>,
-    opacity_logits: PyReadonlyArray1<'py, f32>,
-    sh: PyReadonlyArray1<'py, f32>,
-    k: PyReadonlyArray2<'py, f64>,
-    world_to_cam: PyReadonlyArray2<'py, f64>,
-    half_fov_tan: [f64; 2],
-    width: u32,
-    height: u32,
-    background: [f32; 3],
-    antialiased: bool,
-    v_pixels: PyReadonlyArray1<'py, f32>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
-    let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
+    v_pixels: PyReadonlyArray1<'_, f32>,
+) -> PyResult<PyGaussianArrays> {
+    let (input, camera) = (gaussians.input(), view.camera);
     let v = slice("v_pixels", &v_pixels)?;
-    let settings = RenderSettings {
-        background,
-        antialiased,
-        ..Default::default()
-    };
+    let settings = render_settings(background, antialiased);
     let grads = py
         .detach(|| with_renderer(|r| r.backward(&input, &camera, &settings, v)))
         .map_err(to_py)?;
-    let out = PyDict::new(py);
-    out.set_item("means", PyArray1::from_vec(py, grads.means))?;
-    out.set_item("log_scales", PyArray1::from_vec(py, grads.log_scales))?;
-    out.set_item("quats", PyArray1::from_vec(py, grads.quats))?;
-    out.set_item(
-        "opacity_logits",
-        PyArray1::from_vec(py, grads.opacity_logits),
-    )?;
-    out.set_item("sh", PyArray1::from_vec(py, grads.sh))?;
-    Ok(out)
+    let packed = [
+        grads.means,
+        grads.log_scales,
+        grads.quats,
+        grads.opacity_logits,
+        grads.sh,
+    ]
+    .concat();
+    let set = gaussians.set();
+    Ok(PyGaussianArrays::from_packed(
+        &packed,
+        set.len(),
+        set.sh_degree,
+    ))
 }
 
 /// The adapter the renderer uses: {name, backend, device_type, driver} and which of the
@@ -185,6 +209,8 @@ fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyView>()?;
+    m.add_class::<PyRasterOutput>()?;
     m.add_function(wrap_pyfunction!(render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render_backward, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;

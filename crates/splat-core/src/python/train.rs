@@ -1,25 +1,25 @@
 //! Python binding of the resident training loop: `TrainSession` (driven by
 //! `pano4d.lift.resident.ResidentTrainer`).
 //!
-//! Gaussian sets cross as one packed float32 array each, in the shaders' SoA order (means,
-//! log-scales, quaternions, opacity logits, SH), with their count; so do the Adam moments.
-//! The session's knobs cross as one `TrainSettings` (the Rust [`TrainConfig`]), built by
-//! keyword. Every call runs on the process-wide renderer (python/raster.rs) with the GIL
-//! released.
+//! Everything crosses as typed objects built by keyword and read by name: the knobs as one
+//! `TrainSettings` (the Rust [`TrainConfig`]), each view's targets as a `ViewTarget`, the
+//! static set, the trained set, gradients and Adam moments as `GaussianArrays`
+//! (python/gaussians.rs), and what comes back as `LossParts`, `FrameCheck`, `TrainState`
+//! and `Traffic`. Every call runs on the process-wide renderer (python/raster.rs) with the
+//! GIL released.
 
 use std::collections::BTreeMap;
 
-use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 
-use super::raster::{camera_from, slice, to_py, with_renderer};
-use crate::gaussians::{SceneInput, BASE_FLOATS};
-use crate::raster::RenderSettings;
+use super::gaussians::PyGaussianArrays;
+use super::raster::{slice, to_py, with_renderer, PyView};
+use crate::raster::{IntersectionCheck, RenderSettings};
 use crate::train::{
-    AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput, ViewTargets, GROUPS,
-    OUTSIDE_SUMS,
+    AdamConfig, LossParts, LossWeights, Traffic, TrainConfig, TrainSession, TrainedInput,
+    ViewTargets, GROUPS, OUTSIDE_SUMS,
 };
 
 /// The learning-rate groups by name, in [`crate::train::AdamConfig::learning_rates`]' order
@@ -159,46 +159,6 @@ impl PyTrainSettings {
     }
 }
 
-/// A packed SoA array of `n` Gaussians as a [`SceneInput`].
-fn unpack<'a>(name: &str, packed: &'a [f32], n: usize) -> PyResult<SceneInput<'a>> {
-    let bad = || {
-        PyValueError::new_err(format!(
-            "{name} has {} values: not n·(11 + 3k) for n = {n} and k in {{1, 4, 9, 16}}",
-            packed.len()
-        ))
-    };
-    let k = if n == 0 {
-        1
-    } else {
-        if packed.len() % n != 0 {
-            return Err(bad());
-        }
-        let per = packed.len() / n;
-        if per < BASE_FLOATS || (per - BASE_FLOATS) % 3 != 0 {
-            return Err(bad());
-        }
-        (per - BASE_FLOATS) / 3
-    };
-    if ![1, 4, 9, 16].contains(&k) {
-        return Err(bad());
-    }
-    let mut parts = [3 * n, 3 * n, 4 * n, n, 3 * k * n]
-        .into_iter()
-        .scan(0, |start, len| {
-            let part = &packed[*start..*start + len];
-            *start += len;
-            Some(part)
-        });
-    let mut next = || parts.next().unwrap_or(&[]);
-    Ok(SceneInput {
-        means: next(),
-        log_scales: next(),
-        quats: next(),
-        opacity_logits: next(),
-        sh: next(),
-    })
-}
-
 fn optional<'a>(
     name: &str,
     array: &'a Option<PyReadonlyArray1<'_, f32>>,
@@ -206,64 +166,289 @@ fn optional<'a>(
     array.as_ref().map(|a| slice(name, a)).transpose()
 }
 
-/// (K, world_to_cam, half_fov_tan, width, height, rgb, weight, depth, previous, weight_sum,
-/// outside) of one view.
-type PyView<'py> = (
-    PyReadonlyArray2<'py, f64>,
-    PyReadonlyArray2<'py, f64>,
-    [f64; 2],
-    u32,
-    u32,
-    PyReadonlyArray1<'py, f32>,
-    PyReadonlyArray1<'py, f32>,
-    Option<PyReadonlyArray1<'py, f32>>,
-    Option<PyReadonlyArray1<'py, f32>>,
-    f32,
-    [f32; OUTSIDE_SUMS],
-);
+/// An array's values in row-major order, whatever its shape and memory layout.
+fn flattened(array: &PyReadonlyArrayDyn<'_, f32>) -> Vec<f32> {
+    array.as_array().iter().copied().collect()
+}
 
-/// The trained Gaussians, their Adam moments and the stage's targets on the GPU.
+/// One view's targets (train::ViewTargets): the camera, the target rgb (H·W·3 values),
+/// the loss weight (H·W), Θ's z-depth (H·W, for L_geo) and the previous timestamp's render
+/// (H·W·3, for L_temporal) where the loss has them, the whole view's weight sum and the
+/// loss sums over the rest of it when the view is a window of a larger one. Arrays are
+/// float32 of any shape with those counts (read in row-major order) and copied.
+#[pyclass(name = "ViewTarget", module = "pano4d._core", frozen)]
+pub struct PyViewTarget {
+    camera: crate::camera::Camera,
+    rgb: Vec<f32>,
+    weight: Vec<f32>,
+    depth: Option<Vec<f32>>,
+    previous: Option<Vec<f32>>,
+    weight_sum: f32,
+    outside_sums: [f32; OUTSIDE_SUMS],
+}
+
+#[pymethods]
+impl PyViewTarget {
+    #[new]
+    #[pyo3(signature = (*, view, rgb, weight, weight_sum, outside_sums, depth=None, previous=None))]
+    fn new(
+        view: PyRef<'_, PyView>,
+        rgb: PyReadonlyArrayDyn<'_, f32>,
+        weight: PyReadonlyArrayDyn<'_, f32>,
+        weight_sum: f32,
+        outside_sums: [f32; OUTSIDE_SUMS],
+        depth: Option<PyReadonlyArrayDyn<'_, f32>>,
+        previous: Option<PyReadonlyArrayDyn<'_, f32>>,
+    ) -> Self {
+        Self {
+            camera: view.camera,
+            rgb: flattened(&rgb),
+            weight: flattened(&weight),
+            depth: depth.as_ref().map(flattened),
+            previous: previous.as_ref().map(flattened),
+            weight_sum,
+            outside_sums,
+        }
+    }
+}
+
+impl PyViewTarget {
+    fn targets(&self) -> ViewTargets<'_> {
+        ViewTargets {
+            camera: self.camera,
+            rgb: &self.rgb,
+            weight: &self.weight,
+            depth: self.depth.as_deref(),
+            previous: self.previous.as_deref(),
+            weight_sum: self.weight_sum,
+            outside: self.outside_sums,
+        }
+    }
+}
+
+/// One step's loss and its parts (train::LossParts), by name.
+#[pyclass(name = "LossParts", module = "pano4d._core", frozen)]
+pub struct PyLossParts {
+    parts: LossParts,
+}
+
+#[pymethods]
+impl PyLossParts {
+    /// L, the weighted sum of the terms below (L_sem, on the host, not included).
+    #[getter]
+    fn total(&self) -> f32 {
+        self.parts.total
+    }
+
+    #[getter]
+    fn l1(&self) -> f32 {
+        self.parts.l1
+    }
+
+    /// 1 − SSIM.
+    #[getter]
+    fn d_ssim(&self) -> f32 {
+        self.parts.d_ssim
+    }
+
+    /// L_temporal; 0 for a view without a previous render.
+    #[getter]
+    fn temporal(&self) -> f32 {
+        self.parts.temporal
+    }
+
+    /// L_geo before its weight (1 − Pearson); 0 where it did not apply.
+    #[getter]
+    fn one_minus_pearson(&self) -> f32 {
+        self.parts.one_minus_pearson
+    }
+
+    /// Σ weight over the pixels the render covers (alpha > 0.5).
+    #[getter]
+    fn covered_weight(&self) -> f32 {
+        self.parts.covered_weight
+    }
+
+    /// Whether L_geo applied this step.
+    #[getter]
+    fn geo_applied(&self) -> bool {
+        self.parts.geo_applied
+    }
+
+    fn __repr__(&self) -> String {
+        let p = &self.parts;
+        format!(
+            "LossParts(total={}, l1={}, d_ssim={}, temporal={}, one_minus_pearson={}, \
+             covered_weight={}, geo_applied={})",
+            p.total,
+            p.l1,
+            p.d_ssim,
+            p.temporal,
+            p.one_minus_pearson,
+            p.covered_weight,
+            if p.geo_applied { "True" } else { "False" }
+        )
+    }
+}
+
+/// The losses of given pixels (`TrainSession.loss_gradient`): their gradient and the parts.
+#[pyclass(name = "LossGradient", module = "pano4d._core", frozen)]
+pub struct PyLossGradient {
+    pixel_gradient: Py<PyArray1<f32>>,
+    parts: Py<PyLossParts>,
+}
+
+#[pymethods]
+impl PyLossGradient {
+    /// d L / d pixels, H·W·5 float32 (the forward's layout).
+    #[getter]
+    fn pixel_gradient(&self, py: Python<'_>) -> Py<PyArray1<f32>> {
+        self.pixel_gradient.clone_ref(py)
+    }
+
+    #[getter]
+    fn parts(&self, py: Python<'_>) -> Py<PyLossParts> {
+        self.parts.clone_ref(py)
+    }
+}
+
+/// The renderer's check of the frames since the last one (raster::IntersectionCheck).
+#[pyclass(name = "FrameCheck", module = "pano4d._core", frozen)]
+pub struct PyFrameCheck {
+    check: IntersectionCheck,
+}
+
+#[pymethods]
+impl PyFrameCheck {
+    /// Frames that outgrew their intersection buffers (drew only the background).
+    #[getter]
+    fn overflowed(&self) -> u32 {
+        self.check.overflowed
+    }
+
+    /// The most intersections of any frame so far.
+    #[getter]
+    fn max_intersections(&self) -> u32 {
+        self.check.max_intersections
+    }
+
+    /// The intersections a frame has room for from now on.
+    #[getter]
+    fn capacity(&self) -> u32 {
+        self.check.capacity
+    }
+}
+
+/// Bytes the session has moved between host and device (train::Traffic).
+#[pyclass(name = "Traffic", module = "pano4d._core", frozen)]
+pub struct PyTraffic {
+    traffic: Traffic,
+}
+
+#[pymethods]
+impl PyTraffic {
+    #[getter]
+    fn uploaded(&self) -> u64 {
+        self.traffic.uploaded
+    }
+
+    #[getter]
+    fn read_back(&self) -> u64 {
+        self.traffic.read_back
+    }
+}
+
+/// The trained set and its optimiser state, read back (train::TrainState): the parameters
+/// and Adam's moments as `GaussianArrays` (the means' moments are the offsets'), the
+/// per-Gaussian offset unit and gradient statistics, and the Adam step count.
+#[pyclass(name = "TrainState", module = "pano4d._core", frozen)]
+pub struct PyTrainState {
+    params: Py<PyGaussianArrays>,
+    exp_avg: Py<PyGaussianArrays>,
+    exp_avg_sq: Py<PyGaussianArrays>,
+    unit: Py<PyArray1<f32>>,
+    grad_accum: Py<PyArray1<f32>>,
+    grad_count: Py<PyArray1<f32>>,
+    adam_steps: u64,
+}
+
+#[pymethods]
+impl PyTrainState {
+    #[getter]
+    fn params(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+        self.params.clone_ref(py)
+    }
+
+    #[getter]
+    fn exp_avg(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+        self.exp_avg.clone_ref(py)
+    }
+
+    #[getter]
+    fn exp_avg_sq(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+        self.exp_avg_sq.clone_ref(py)
+    }
+
+    /// (N,) each Gaussian's offset unit.
+    #[getter]
+    fn unit(&self, py: Python<'_>) -> Py<PyArray1<f32>> {
+        self.unit.clone_ref(py)
+    }
+
+    /// (N,) Σ ‖g_offset‖ across the ray since the last densification.
+    #[getter]
+    fn grad_accum(&self, py: Python<'_>) -> Py<PyArray1<f32>> {
+        self.grad_accum.clone_ref(py)
+    }
+
+    /// (N,) the steps where that gradient was non-zero.
+    #[getter]
+    fn grad_count(&self, py: Python<'_>) -> Py<PyArray1<f32>> {
+        self.grad_count.clone_ref(py)
+    }
+
+    #[getter]
+    fn adam_steps(&self) -> u64 {
+        self.adam_steps
+    }
+}
+
+/// The trained Gaussians, their Adam moments and the stage's targets on the GPU, after a
+/// frozen static set.
 #[pyclass(name = "TrainSession", module = "pano4d._core")]
 pub struct PyTrainSession {
     inner: TrainSession,
 }
 
+impl PyTrainSession {
+    /// Gaussians `first..first + n` of the session's packed read-back as `GaussianArrays`.
+    fn arrays(&self, packed: &[f32], n: usize) -> PyGaussianArrays {
+        PyGaussianArrays::from_packed(packed, n, self.inner.sh_degree())
+    }
+}
+
 #[pymethods]
 impl PyTrainSession {
-    /// `context`/`trained`: packed Gaussians (see the module docs); `unit`: each trained
-    /// Gaussian's offset unit; `views`: (K, world_to_cam, half_fov_tan, width, height, rgb,
-    /// weight, depth or None, previous or None, weight_sum, outside sums) tuples (a view may
-    /// be a window of a larger one: train::ViewTargets); `settings`: a TrainSettings.
+    /// `static_set`: the frozen static set drawn before the trained one (may be empty; the
+    /// trained set's SH degree); `trained`: the set to train; `unit`: each trained
+    /// Gaussian's offset unit; `views`: the ViewTargets steps draw from (a view may be a
+    /// window of a larger one: train::ViewTargets); `settings`: a TrainSettings.
     #[new]
+    #[pyo3(signature = (*, static_set, trained, unit, views, settings))]
     fn new(
         py: Python<'_>,
-        context: PyReadonlyArray1<'_, f32>,
-        context_len: usize,
-        trained: PyReadonlyArray1<'_, f32>,
+        static_set: PyRef<'_, PyGaussianArrays>,
+        trained: PyRef<'_, PyGaussianArrays>,
         unit: PyReadonlyArray1<'_, f32>,
-        views: Vec<PyView<'_>>,
+        views: Vec<PyRef<'_, PyViewTarget>>,
         settings: PyRef<'_, PyTrainSettings>,
     ) -> PyResult<Self> {
         let unit = slice("unit", &unit)?;
-        let context = unpack("context", slice("context", &context)?, context_len)?;
-        let gaussians = unpack("trained", slice("trained", &trained)?, unit.len())?;
-        let mut targets = Vec::with_capacity(views.len());
-        for (k, w2c, tan, width, height, rgb, weight, depth, previous, weight_sum, outside) in
-            &views
-        {
-            targets.push(ViewTargets {
-                camera: camera_from(k, w2c, *tan, *width, *height)?,
-                rgb: slice("rgb", rgb)?,
-                weight: slice("weight", weight)?,
-                depth: optional("depth", depth)?,
-                previous: optional("previous", previous)?,
-                weight_sum: *weight_sum,
-                outside: *outside,
-            });
-        }
+        let targets: Vec<ViewTargets<'_>> = views.iter().map(|v| v.targets()).collect();
         let config = settings.config;
+        let static_set = static_set.input();
         let trained = TrainedInput {
-            gaussians,
+            gaussians: trained.input(),
             unit,
             exp_avg: None,
             exp_avg_sq: None,
@@ -272,7 +457,9 @@ impl PyTrainSession {
             adam_steps: 0,
         };
         let inner = py
-            .detach(|| with_renderer(|r| TrainSession::new(r, context, trained, &targets, config)))
+            .detach(|| {
+                with_renderer(|r| TrainSession::new(r, static_set, trained, &targets, config))
+            })
             .map_err(to_py)?;
         Ok(Self { inner })
     }
@@ -308,37 +495,36 @@ impl PyTrainSession {
         Ok(PyArray1::from_vec(py, pixels))
     }
 
-    /// Renders at another camera (of at most the largest view's pixels); returns its
-    /// pixels (H·W·5).
+    /// Renders at another view (of at most the largest view's pixels); returns its pixels
+    /// (H·W·5).
     fn render_at<'py>(
         &mut self,
         py: Python<'py>,
-        k: PyReadonlyArray2<'py, f64>,
-        world_to_cam: PyReadonlyArray2<'py, f64>,
-        half_fov_tan: [f64; 2],
-        width: u32,
-        height: u32,
+        view: PyRef<'py, PyView>,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let s = &mut self.inner;
-        let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
+        let camera = view.camera;
         let pixels = py
             .detach(|| with_renderer(|r| s.render_at(r, &camera)))
             .map_err(to_py)?;
         Ok(PyArray1::from_vec(py, pixels))
     }
 
-    /// The losses of view `view` on given pixels (H·W·5) instead of a render: (pixel
-    /// gradient, loss parts). For checking the loss kernels.
-    fn loss_gradient<'py>(
+    /// The losses of view `view` on given pixels (H·W·5) instead of a render, for checking
+    /// the loss kernels.
+    fn loss_gradient(
         &mut self,
-        py: Python<'py>,
+        py: Python<'_>,
         view: usize,
-        pixels: PyReadonlyArray1<'py, f32>,
-    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Vec<f32>)> {
+        pixels: PyReadonlyArray1<'_, f32>,
+    ) -> PyResult<PyLossGradient> {
         let p = slice("pixels", &pixels)?;
         let s = &mut self.inner;
-        let (gradient, loss) = py.detach(|| s.loss_gradient(view, p)).map_err(to_py)?;
-        Ok((PyArray1::from_vec(py, gradient), loss.to_vec()))
+        let (gradient, parts) = py.detach(|| s.loss_gradient(view, p)).map_err(to_py)?;
+        Ok(PyLossGradient {
+            pixel_gradient: PyArray1::from_vec(py, gradient).unbind(),
+            parts: Py::new(py, PyLossParts { parts })?,
+        })
     }
 
     /// Adds the gradient of a loss on render_at's pixels (H·W·5) to this step's.
@@ -355,15 +541,16 @@ impl PyTrainSession {
         py.detach(|| s.apply_adam()).map_err(to_py)
     }
 
-    /// Adam on given gradients (context + trained, the backward's packed layout).
+    /// Adam on given gradients of the whole scene (the static set, then the trained set:
+    /// what the backward writes).
     fn apply_gradients(
         &mut self,
         py: Python<'_>,
-        grads: PyReadonlyArray1<'_, f32>,
+        grads: PyRef<'_, PyGaussianArrays>,
     ) -> PyResult<()> {
-        let g = slice("grads", &grads)?;
+        let packed = grads.input().packed();
         let s = &mut self.inner;
-        py.detach(|| s.apply_gradients(g)).map_err(to_py)
+        py.detach(|| s.apply_gradients(&packed)).map_err(to_py)
     }
 
     /// Sizes the renderer's intersection buffers for every view of the current scene (one
@@ -374,76 +561,78 @@ impl PyTrainSession {
             .map_err(to_py)
     }
 
-    /// (frames that overflowed their intersection buffers since the last check, the
-    /// largest frame's intersections, the room from now on); grows the room when the
-    /// largest frame came near it. A 16-byte read-back: call it with the loss.
-    fn check_frames(&mut self, py: Python<'_>) -> PyResult<(u32, u32, u32)> {
+    /// The frames since the last check; grows the room when the largest frame came near
+    /// it. A 16-byte read-back: call it with the loss.
+    fn check_frames(&mut self, py: Python<'_>) -> PyResult<PyFrameCheck> {
         let s = &mut self.inner;
-        let c = py
+        let check = py
             .detach(|| with_renderer(|r| s.check_frames(r)))
             .map_err(to_py)?;
-        Ok((c.overflowed, c.max_intersections, c.capacity))
+        Ok(PyFrameCheck { check })
     }
 
-    /// The last step's loss parts: (L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
-    /// weight, 1.0 if L_geo applied else 0.0).
-    fn loss(&mut self, py: Python<'_>) -> PyResult<Vec<f32>> {
+    /// The last step's loss and its parts.
+    fn loss(&mut self, py: Python<'_>) -> PyResult<PyLossParts> {
         let s = &mut self.inner;
-        Ok(py.detach(|| s.loss()).map_err(to_py)?.to_vec())
+        let parts = py.detach(|| s.loss()).map_err(to_py)?;
+        Ok(PyLossParts { parts })
     }
 
-    /// The trained set and optimiser state: {params, unit, exp_avg, exp_avg_sq,
-    /// grad_accum, grad_count} as flat float32 arrays (params and moments packed) and
-    /// adam_steps.
-    fn state<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    /// The trained set and its optimiser state (one round trip).
+    fn state(&mut self, py: Python<'_>) -> PyResult<PyTrainState> {
         let s = &mut self.inner;
         let state = py.detach(|| s.state()).map_err(to_py)?;
-        let out = PyDict::new(py);
-        out.set_item("params", PyArray1::from_vec(py, state.params))?;
-        out.set_item("unit", PyArray1::from_vec(py, state.unit))?;
-        out.set_item("exp_avg", PyArray1::from_vec(py, state.exp_avg))?;
-        out.set_item("exp_avg_sq", PyArray1::from_vec(py, state.exp_avg_sq))?;
-        out.set_item("grad_accum", PyArray1::from_vec(py, state.grad_accum))?;
-        out.set_item("grad_count", PyArray1::from_vec(py, state.grad_count))?;
-        out.set_item("adam_steps", state.adam_steps)?;
-        Ok(out)
+        let n = state.unit.len();
+        let arrays = |packed: &[f32]| Py::new(py, self.arrays(packed, n));
+        Ok(PyTrainState {
+            params: arrays(&state.params)?,
+            exp_avg: arrays(&state.exp_avg)?,
+            exp_avg_sq: arrays(&state.exp_avg_sq)?,
+            unit: PyArray1::from_vec(py, state.unit).unbind(),
+            grad_accum: PyArray1::from_vec(py, state.grad_accum).unbind(),
+            grad_count: PyArray1::from_vec(py, state.grad_count).unbind(),
+            adam_steps: state.adam_steps,
+        })
     }
 
-    /// The trained set's parameters as one packed float32 array.
-    fn params<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    /// The trained set's parameters.
+    fn params(&mut self, py: Python<'_>) -> PyResult<PyGaussianArrays> {
         let s = &mut self.inner;
         let packed = py.detach(|| s.params()).map_err(to_py)?;
-        Ok(PyArray1::from_vec(py, packed))
+        Ok(self.arrays(&packed, self.inner.len()))
     }
 
-    /// The whole scene (context, then trained set) as one packed float32 array.
-    fn scene<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    /// The whole scene: the static set, then the trained set.
+    fn scene(&mut self, py: Python<'_>) -> PyResult<PyGaussianArrays> {
         let s = &mut self.inner;
         let packed = py.detach(|| s.scene()).map_err(to_py)?;
-        Ok(PyArray1::from_vec(py, packed))
+        let n = self.inner.static_len() + self.inner.len();
+        Ok(self.arrays(&packed, n))
     }
 
     /// Replaces the trained set and its optimiser state (densification, resume); moments
     /// and statistics left out start at zero.
-    #[pyo3(signature = (trained, unit, exp_avg=None, exp_avg_sq=None, grad_accum=None, grad_count=None, adam_steps=0))]
+    #[pyo3(signature = (*, trained, unit, exp_avg=None, exp_avg_sq=None, grad_accum=None, grad_count=None, adam_steps=0))]
     #[allow(clippy::too_many_arguments)]
     fn set_trained(
         &mut self,
         py: Python<'_>,
-        trained: PyReadonlyArray1<'_, f32>,
+        trained: PyRef<'_, PyGaussianArrays>,
         unit: PyReadonlyArray1<'_, f32>,
-        exp_avg: Option<PyReadonlyArray1<'_, f32>>,
-        exp_avg_sq: Option<PyReadonlyArray1<'_, f32>>,
+        exp_avg: Option<PyRef<'_, PyGaussianArrays>>,
+        exp_avg_sq: Option<PyRef<'_, PyGaussianArrays>>,
         grad_accum: Option<PyReadonlyArray1<'_, f32>>,
         grad_count: Option<PyReadonlyArray1<'_, f32>>,
         adam_steps: u64,
     ) -> PyResult<()> {
         let unit = slice("unit", &unit)?;
+        let exp_avg = exp_avg.map(|m| m.input().packed());
+        let exp_avg_sq = exp_avg_sq.map(|m| m.input().packed());
         let input = TrainedInput {
-            gaussians: unpack("trained", slice("trained", &trained)?, unit.len())?,
+            gaussians: trained.input(),
             unit,
-            exp_avg: optional("exp_avg", &exp_avg)?,
-            exp_avg_sq: optional("exp_avg_sq", &exp_avg_sq)?,
+            exp_avg: exp_avg.as_deref(),
+            exp_avg_sq: exp_avg_sq.as_deref(),
             grad_accum: optional("grad_accum", &grad_accum)?,
             grad_count: optional("grad_count", &grad_count)?,
             adam_steps,
@@ -452,10 +641,11 @@ impl PyTrainSession {
         py.detach(|| s.set_trained(input)).map_err(to_py)
     }
 
-    /// (bytes uploaded, bytes read back) by the session so far.
-    fn traffic(&self) -> (u64, u64) {
-        let t = self.inner.traffic();
-        (t.uploaded, t.read_back)
+    /// Bytes moved between host and device by the session so far.
+    fn traffic(&self) -> PyTraffic {
+        PyTraffic {
+            traffic: self.inner.traffic(),
+        }
     }
 
     fn __len__(&self) -> usize {
@@ -465,6 +655,12 @@ impl PyTrainSession {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyTrainSettings>()?;
+    m.add_class::<PyViewTarget>()?;
+    m.add_class::<PyLossParts>()?;
+    m.add_class::<PyLossGradient>()?;
+    m.add_class::<PyFrameCheck>()?;
+    m.add_class::<PyTraffic>()?;
+    m.add_class::<PyTrainState>()?;
     m.add_class::<PyTrainSession>()?;
     Ok(())
 }

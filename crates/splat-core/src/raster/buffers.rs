@@ -90,8 +90,8 @@ pub(super) struct Buffers {
     pub(super) ranges: GrowBuffer,
     pub(super) pixels: GrowBuffer,
     pub(super) pixel_state: GrowBuffer,
-    /// Bound as the frozen render of a frame that has none (the blending does not read it).
-    pub(super) no_frozen_render: wgpu::Buffer,
+    /// Bound as the static render of a frame that has none (the blending does not read it).
+    pub(super) no_static_render: wgpu::Buffer,
     pub(super) v_pixels: GrowBuffer,
     /// Each Gaussian's ten 2D gradient sums (rasterize_backward.wgsl).
     pub(super) gaussian_grads: GrowBuffer,
@@ -127,8 +127,8 @@ impl Buffers {
                 usage: wgpu::BufferUsages::STORAGE | copy,
                 mapped_at_creation: false,
             }),
-            no_frozen_render: device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("no frozen render"),
+            no_static_render: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("no static render"),
                 size: 4 * PIXEL_CHANNELS as u64,
                 usage: wgpu::BufferUsages::STORAGE,
                 mapped_at_creation: false,

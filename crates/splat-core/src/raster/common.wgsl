@@ -34,12 +34,12 @@ struct RenderParams {
     // 1: add an overflow to the running counts the host checks now and then (a training
     // loop's frames); 0: the caller checks this frame itself (one-off renders).
     record_overflow: u32,
-    // The Gaussians before this one are a frozen context: the backward gives them zero
+    // The first n_static Gaussians are the frozen static set: the backward gives them zero
     // gradients without summing any (0 outside training sessions).
-    first_trained: u32,
-    // 1: the frozen context's own render of this camera is bound to the blending, which
+    n_static: u32,
+    // 1: the static set's own render of this camera is bound to the blending, which
     // copies the tiles no trained Gaussian reaches from it (blend/rasterize.wgsl).
-    frozen_render: u32,
+    static_render: u32,
     pad0: u32,
     pad1: u32,
     pad2: u32,

@@ -15,10 +15,10 @@ pub struct SceneBuffer {
     pub len: u32,
     pub stride: u32,
     pub sh_coeffs: u32,
-    /// The leading Gaussians nobody trains (a training session's frozen context): the
+    /// The leading Gaussians nobody trains (a training session's frozen static set): the
     /// backward gives them zero gradients without working them out, and stops each pixel's
     /// walk at the front-most Gaussian that is trained.
-    pub frozen: u32,
+    pub n_static: u32,
 }
 
 /// The most bytes one storage buffer may hold and bind on `device`.
@@ -191,7 +191,7 @@ impl GpuScene {
             len: self.len,
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
-            frozen: 0,
+            n_static: 0,
         }
     }
 }

@@ -99,7 +99,7 @@ impl Renderer {
             len: n,
             stride: n,
             sh_coeffs: k,
-            frozen: 0,
+            n_static: 0,
         })
     }
 
@@ -118,8 +118,8 @@ impl Renderer {
     /// room. Chain [`Self::encode_backward`] on the returned frame before the next
     /// `encode_frame`.
     ///
-    /// `frozen_render`: the render (H·W·5, [`Self::frame_pixels`]' layout) of the scene's
-    /// frozen prefix alone (`scene.frozen` Gaussians) from this camera with these settings,
+    /// `static_render`: the render (H·W·5, [`Self::frame_pixels`]' layout) of the scene's
+    /// static prefix alone (`scene.n_static` Gaussians) from this camera with these settings,
     /// where the caller keeps one: the tiles no trained Gaussian reaches are copied from it
     /// instead of blended (the same pixels: the same Gaussians in the same order).
     pub fn encode_frame(
@@ -127,9 +127,9 @@ impl Renderer {
         scene: SceneBuffer,
         camera: &Camera,
         settings: &RenderSettings,
-        frozen_render: Option<&wgpu::Buffer>,
+        static_render: Option<&wgpu::Buffer>,
     ) -> Result<Frame, RasterError> {
-        self.encode_frame_for(scene, camera, settings, true, frozen_render)
+        self.encode_frame_for(scene, camera, settings, true, static_render)
     }
 
     /// [`Self::encode_frame`]; `record`: whether an overflow counts in
@@ -140,19 +140,19 @@ impl Renderer {
         camera: &Camera,
         settings: &RenderSettings,
         record: bool,
-        frozen_render: Option<&wgpu::Buffer>,
+        static_render: Option<&wgpu::Buffer>,
     ) -> Result<Frame, RasterError> {
         validate_camera(camera)?;
         validate_settings(settings)?;
         let pixel_bytes = 4 * PIXEL_CHANNELS as u64 * camera.width as u64 * camera.height as u64;
-        if let Some(buffer) = frozen_render {
-            if scene.frozen == 0 || buffer.size() < pixel_bytes {
+        if let Some(buffer) = static_render {
+            if scene.n_static == 0 || buffer.size() < pixel_bytes {
                 return Err(RasterError::InvalidInput(format!(
-                    "a frozen render needs a frozen prefix and {pixel_bytes} bytes for a \
-                     {}x{} frame, got {} frozen Gaussians and {} bytes",
+                    "a static render needs a static prefix and {pixel_bytes} bytes for a \
+                     {}x{} frame, got {} static Gaussians and {} bytes",
                     camera.width,
                     camera.height,
-                    scene.frozen,
+                    scene.n_static,
                     buffer.size()
                 )));
             }
@@ -160,7 +160,7 @@ impl Renderer {
         let device = self.ctx.device.clone();
         let mut params = RenderParams::new(camera, settings, &scene);
         params.record_overflow = record as u32;
-        params.frozen_render = frozen_render.is_some() as u32;
+        params.static_render = static_render.is_some() as u32;
         params.intersection_capacity = self.intersection_capacity;
         self.write_params(&params);
         let mut encoder = device.create_command_encoder(&Default::default());
@@ -175,7 +175,7 @@ impl Renderer {
             self.write_params(&params);
             encoder = device.create_command_encoder(&Default::default());
         }
-        let frame = self.encode_blend(&mut encoder, scene, params, depth_sorted, frozen_render);
+        let frame = self.encode_blend(&mut encoder, scene, params, depth_sorted, static_render);
         self.submit(encoder)?;
         Ok(frame)
     }
@@ -262,7 +262,7 @@ impl Renderer {
         scene: SceneBuffer,
         params: RenderParams,
         depth_sorted: usize,
-        frozen_render: Option<&wgpu::Buffer>,
+        static_render: Option<&wgpu::Buffer>,
     ) -> Frame {
         let device = self.ctx.device.clone();
         let b = &mut self.buffers;
@@ -333,7 +333,7 @@ impl Renderer {
                 ranges: &ranges,
                 pixels: &out_pixels,
                 pixel_state: &pixel_state,
-                frozen_pixels: frozen_render.unwrap_or(&b.no_frozen_render),
+                static_pixels: static_render.unwrap_or(&b.no_static_render),
             };
             self.blend
                 .encode(&mut pass, &device, &blend, params.tiles());

@@ -35,22 +35,22 @@ pub struct AdamConfig {
 gpu_struct! {
     /// The uniform of one Adam step (adam.wgsl documents each field).
     pub(crate) struct AdamParams {
-        n_context: u32,
+        n_static: u32,
         n_train: u32,
-        stride: u32,
         grad_len: u32,
         sh_coeffs: u32,
         has_extra: u32,
         pad0: u32,
         pad1: u32,
+        pad2: u32,
         beta1_complement: f32,
         beta2: f32,
         beta2_complement: f32,
         eps: f32,
         bias2_sqrt: f32,
-        pad2: f32,
         pad3: f32,
         pad4: f32,
+        pad5: f32,
         /// Per group, four to a vector (two groups unused).
         neg_step: [[f32; 4]; 2],
     }
@@ -59,9 +59,8 @@ gpu_struct! {
 /// Where the trained Gaussians and their gradients lie (see adam.wgsl's header).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct AdamLayout {
-    pub n_context: u32,
+    pub n_static: u32,
     pub n_train: u32,
-    pub stride: u32,
     pub sh_coeffs: u32,
     pub has_extra: bool,
 }
@@ -83,22 +82,22 @@ impl AdamConfig {
             *out = -(lr / bias1) as f32;
         }
         AdamParams {
-            n_context: layout.n_context,
+            n_static: layout.n_static,
             n_train: layout.n_train,
-            stride: layout.stride,
-            grad_len: layout.n_context + layout.n_train,
+            grad_len: layout.n_static + layout.n_train,
             sh_coeffs: layout.sh_coeffs,
             has_extra: layout.has_extra as u32,
             pad0: 0,
             pad1: 0,
+            pad2: 0,
             beta1_complement: (1.0 - self.beta1) as f32,
             beta2: self.beta2 as f32,
             beta2_complement: (1.0 - self.beta2) as f32,
             eps: self.eps as f32,
             bias2_sqrt: bias2.sqrt() as f32,
-            pad2: 0.0,
             pad3: 0.0,
             pad4: 0.0,
+            pad5: 0.0,
             neg_step,
         }
     }
@@ -107,7 +106,8 @@ impl AdamConfig {
 /// The buffers one Adam step reads and writes.
 pub(super) struct AdamBindings<'a> {
     pub params: &'a wgpu::Buffer,
-    pub scene: &'a wgpu::Buffer,
+    /// The trained set's parameters (not the rendered snapshot: session.rs).
+    pub trained: &'a wgpu::Buffer,
     pub grads: &'a wgpu::Buffer,
     pub grads_extra: &'a wgpu::Buffer,
     pub exp_avg: &'a wgpu::Buffer,
@@ -141,7 +141,7 @@ impl AdamKernel {
             &self.pipeline,
             &[
                 (0, b.params),
-                (1, b.scene),
+                (1, b.trained),
                 (2, b.grads),
                 (3, b.grads_extra),
                 (4, b.exp_avg),

@@ -1,4 +1,5 @@
-// One Adam step of the trained Gaussians, in place on the scene buffer, with the
+// One Adam step of the trained Gaussians, in place on their parameters (not on the
+// snapshot the rasteriser draws, which session.rs's evaluate pass makes from them), with the
 // operations of torch.optim.Adam (single-tensor path, float32) for each element:
 //
 //   m ← lerp(m, g, 1 − β1)                  (fma(1 − β1, g − m, m), as torch's lerp)
@@ -7,7 +8,7 @@
 //
 // The host computes the bias corrections in f64 from the step count, as torch does, and
 // passes them rounded to f32 (train/adam.rs). One learning rate per parameter group:
-// means, log-scales, quaternions, opacity logits, SH DC, SH rest (LEARNING_RATES in
+// means, log-scales, quaternions, opacity logits, SH DC, SH rest (`learning_rates()` in
 // python/pano4d/lift/optimize.py).
 //
 // Means: the torch trainer optimises offsets o with mean = anchor + o·unit (unit = each
@@ -18,38 +19,40 @@
 // densification statistic is torch's too: the norm of g_o across the ray from the origin
 // (the training views' centre: the screen-space part, as 3DGS's) and whether it is non-zero.
 //
-// The scene holds the frozen context first (`n_context` Gaussians, never updated) and the
-// trained set after it; the scene's SoA sections are `stride` long, the gradients'
-// `grad_len` (= context + trained), the moments' `n_train` (gaussian_layout.wgsl's
-// `gaussian_offsets` places each; after common.wgsl for `linear_workgroup`).
+// The parameters and the moments hold the trained set alone, in SoA sections `n_train`
+// long. The gradients are the backward's, of the whole scene drawn: the frozen static set
+// first (`n_static` Gaussians, never updated), then the trained set's snapshot, whose
+// gradient is the parameters' (the evaluate pass is a copy); their sections are `grad_len`
+// (= static set + trained) long (gaussian_layout.wgsl's `gaussian_offsets` places each;
+// after common.wgsl for `linear_workgroup`).
 
 // Rust: train/adam.rs's `AdamParams` (the one declaration; the wgsl tests check this one
 // against it).
 struct AdamParams {
-    n_context: u32,
+    n_static: u32,
     n_train: u32,
-    stride: u32,
     grad_len: u32,
     sh_coeffs: u32,
     // 1 when `grads_extra` (a second render's gradients, the semantic loss) is added.
     has_extra: u32,
     pad0: u32,
     pad1: u32,
+    pad2: u32,
     beta1_complement: f32,
     beta2: f32,
     beta2_complement: f32,
     eps: f32,
     bias2_sqrt: f32,
-    pad2: f32,
     pad3: f32,
     pad4: f32,
+    pad5: f32,
     // −lr / (1 − β1ᵗ) per group: means, log-scales, quats, opacity, SH DC, SH rest.
     neg_step: array<vec4<f32>, 2>,
 }
 
 @group(0) @binding(0) var<uniform> ap: AdamParams;
-// The scene: the context, then the trained set.
-@group(0) @binding(1) var<storage, read_write> gaussians: array<f32>;
+// The trained set's parameters.
+@group(0) @binding(1) var<storage, read_write> params: array<f32>;
 @group(0) @binding(2) var<storage, read> grads: array<f32>;
 @group(0) @binding(3) var<storage, read> grads_extra: array<f32>;
 @group(0) @binding(4) var<storage, read_write> exp_avg: array<f32>;
@@ -75,10 +78,11 @@ fn adam_step(mi: u32, g: f32, group: u32) -> f32 {
     return (ap.neg_step[group / 4u][group % 4u] * m) / denom;
 }
 
-// Parameters `count` wide starting at section offsets (scene, gradient, moment) of one group.
-fn update_plain(scene_at: u32, grad_at: u32, moment_at: u32, count: u32, group: u32) {
+// Parameters `count` wide starting at section offsets (gradient, parameter and moment) of
+// one group.
+fn update_plain(grad_at: u32, at: u32, count: u32, group: u32) {
     for (var c = 0u; c < count; c++) {
-        gaussians[scene_at + c] += adam_step(moment_at + c, gradient(grad_at + c), group);
+        params[at + c] += adam_step(at + c, gradient(grad_at + c), group);
     }
 }
 
@@ -89,31 +93,30 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if i >= ap.n_train {
         return;
     }
-    let gi = ap.n_context + i;
-    let s = gaussian_offsets(ap.stride);
+    let gi = ap.n_static + i;
     let g = gaussian_offsets(ap.grad_len);
-    let m = gaussian_offsets(ap.n_train);
+    // The parameters' and the moments' sections.
+    let p = gaussian_offsets(ap.n_train);
     let k = ap.sh_coeffs;
 
     // Means, through the offsets (see the header). The densification statistic is the
     // gradient's part across the ray from the views' centre (the origin), before the update.
     let u = unit[i];
-    let at = s.means + 3u * gi;
-    let ray = vec3<f32>(gaussians[at], gaussians[at + 1u], gaussians[at + 2u]);
+    let at = p.means + 3u * i;
+    let ray = vec3<f32>(params[at], params[at + 1u], params[at + 2u]);
     var g_offset = vec3<f32>(0.0);
     for (var c = 0u; c < 3u; c++) {
         g_offset[c] = gradient(g.means + 3u * gi + c) * u;
-        gaussians[at + c] += adam_step(m.means + 3u * i + c, g_offset[c], 0u) * u;
+        params[at + c] += adam_step(at + c, g_offset[c], 0u) * u;
     }
     let along = select(vec3<f32>(0.0), normalize(ray), dot(ray, ray) > 0.0);
     let norm = length(g_offset - dot(g_offset, along) * along);
     stats[i] += norm;
     stats[ap.n_train + i] += select(0.0, 1.0, norm > 0.0);
 
-    update_plain(s.log_scales + 3u * gi, g.log_scales + 3u * gi, m.log_scales + 3u * i, 3u, 1u);
-    update_plain(s.quats + 4u * gi, g.quats + 4u * gi, m.quats + 4u * i, 4u, 2u);
-    update_plain(s.opacity + gi, g.opacity + gi, m.opacity + i, 1u, 3u);
-    update_plain(s.sh + 3u * k * gi, g.sh + 3u * k * gi, m.sh + 3u * k * i, 3u, 4u);
-    update_plain(s.sh + 3u * k * gi + 3u, g.sh + 3u * k * gi + 3u, m.sh + 3u * k * i + 3u,
-                 3u * (k - 1u), 5u);
+    update_plain(g.log_scales + 3u * gi, p.log_scales + 3u * i, 3u, 1u);
+    update_plain(g.quats + 4u * gi, p.quats + 4u * i, 4u, 2u);
+    update_plain(g.opacity + gi, p.opacity + i, 1u, 3u);
+    update_plain(g.sh + 3u * k * gi, p.sh + 3u * k * i, 3u, 4u);
+    update_plain(g.sh + 3u * k * gi + 3u, p.sh + 3u * k * i + 3u, 3u * (k - 1u), 5u);
 }

@@ -31,11 +31,47 @@ const PARTIALS: u64 = 8;
 /// (losses.wgsl, `Run`).
 const PIXELS_PER_INVOCATION: u32 = 8;
 const TOTALS: u64 = 16;
-/// Floats of the loss read-back: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered weight,
-/// whether L_geo applied].
+/// Floats of the loss read-back, in `loss_value`'s order (losses.wgsl): [L, L1, 1 − SSIM,
+/// L_temporal, 1 − Pearson, covered weight, whether L_geo applied]; read as [`LossParts`].
 pub const LOSS_PARTS: usize = 7;
 
-/// Weights of the loss terms: L1 and D-SSIM (0.8 and 0.2 times λ_rgb in optimize.py),
+/// One step's loss and its parts, by name.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossParts {
+    /// L = λ_l1 L1 + λ_ssim (1 − SSIM) + λ_temporal L_temporal + λ_geo (1 − Pearson).
+    pub total: f32,
+    pub l1: f32,
+    /// 1 − SSIM.
+    pub d_ssim: f32,
+    /// L_temporal; 0 where the view has no previous render.
+    pub temporal: f32,
+    /// L_geo before its weight: 1 − the Pearson correlation of the rendered depth with Θ's
+    /// over the covered pixels; 0 where L_geo did not apply.
+    pub one_minus_pearson: f32,
+    /// Σ weight over the covered pixels (alpha > 0.5), the view's rest included.
+    pub covered_weight: f32,
+    /// Whether L_geo applied this step (a view with a depth, λ_geo > 0 and `loss_at`'s
+    /// coverage rule met).
+    pub geo_applied: bool,
+}
+
+impl LossParts {
+    /// The read-back floats, in `loss_value`'s order.
+    pub(super) fn from_floats(v: [f32; LOSS_PARTS]) -> Self {
+        Self {
+            total: v[0],
+            l1: v[1],
+            d_ssim: v[2],
+            temporal: v[3],
+            one_minus_pearson: v[4],
+            covered_weight: v[5],
+            geo_applied: v[6] != 0.0,
+        }
+    }
+}
+
+/// Weights of the loss terms: L1 and D-SSIM (1 − λ_dssim and λ_dssim, the `lambda_dssim`
+/// knob: `train_settings` in lift/resident.py),
 /// λ_temporal, λ_geo. L_temporal applies only to views with a previous render, L_geo only
 /// to views with a depth.
 #[derive(Clone, Copy, Debug, PartialEq)]

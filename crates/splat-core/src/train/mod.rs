@@ -4,8 +4,8 @@
 //!
 //! - [`session`]: [`TrainSession`], the buffers and one step (forward → losses → backward
 //!   → Adam), the read-backs at checkpoints and densification, the traffic counter.
-//! - [`losses`]: 0.8·L1 + 0.2·D-SSIM, L_temporal and L_geo with their pixel gradient
-//!   (`losses.wgsl`).
+//! - [`losses`]: λ_l1·L1 + λ_ssim·D-SSIM (λ_ssim is the `lambda_dssim` knob, λ_l1 its
+//!   complement), L_temporal and L_geo with their pixel gradient (`losses.wgsl`).
 //! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
 //!   (`adam.wgsl`).
 //!
@@ -19,7 +19,7 @@ pub mod session;
 mod tests;
 
 pub use adam::{AdamConfig, GROUPS};
-pub use losses::{ssim_taps, ssim_window, LossWeights, LOSS_PARTS, OUTSIDE_SUMS};
+pub use losses::{ssim_taps, ssim_window, LossParts, LossWeights, LOSS_PARTS, OUTSIDE_SUMS};
 pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, ViewTargets};
 
 /// The training loop's kernel modules (for the checks of the WGSL against the Rust

@@ -1,19 +1,31 @@
-//! A training session: the Gaussians being trained (after a frozen context), their Adam
+//! A training session: the Gaussians being trained (after a frozen static set), their Adam
 //! moments, the stage's targets and the scratch of one step, all resident on the device.
 //!
-//! One step ([`TrainSession::step`]) is forward → losses and their pixel gradient →
-//! backward → Adam, submitted without waiting for the host except where the renderer
-//! itself waits (docs/rasterizer.md). The host reads back the loss parts
+//! One step ([`TrainSession::step`]) is evaluate → forward → losses and their pixel
+//! gradient → backward → Adam, submitted without waiting for the host except where the
+//! renderer itself waits (docs/rasterizer.md).
+//!
+//! The parameters Adam updates live apart from what the rasteriser draws: the trained
+//! set's parameters in a buffer of their own (SoA sections of the set's length, as its
+//! moments), the scene the frames read (the static set, then the trained set's rendered
+//! snapshot) in another. The evaluate pass makes the snapshot from the parameters before a
+//! forward that follows a change (one buffer copy a step, per section; a per-Gaussian
+//! function of time goes here), and its adjoint carries the backward's gradient of the
+//! snapshot to the parameters (for a copy, the identity: Adam reads the trained part of the
+//! scene's gradient as the parameters'). It costs one more copy of the trained set on the
+//! device: (11 + 3K)·4 bytes a trained Gaussian, K SH coefficients per channel (56 at
+//! degree 0, 236 at degree 3). The host reads back the loss parts
 //! ([`TrainSession::loss`]) when it wants them and the whole trained state
 //! ([`TrainSession::state`]) at checkpoints, densification and export; [`Traffic`]
 //! counts every byte the session moves between host and device.
 
 use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
 use super::losses::{
-    LossBuffers, LossKernels, LossParams, LossWeights, ViewBuffers, LOSS_PARTS, OUTSIDE_SUMS,
+    LossBuffers, LossKernels, LossParams, LossParts, LossWeights, ViewBuffers, LOSS_PARTS,
+    OUTSIDE_SUMS,
 };
 use crate::camera::Camera;
-use crate::gaussians::{SceneInput, BASE_FLOATS};
+use crate::gaussians::{sh_coeffs, SceneInput, BASE_FLOATS};
 use crate::raster::gpu::{pop_error, read_mapped, submit_checked};
 use crate::raster::{
     binding_limit, Frame, GpuScene, IntersectionCheck, RasterError, RenderSettings, Renderer,
@@ -88,15 +100,17 @@ struct View {
     weight: wgpu::Buffer,
     depth: Option<wgpu::Buffer>,
     previous: Option<wgpu::Buffer>,
-    /// The frozen context's own render of this view, made by the first
-    /// [`TrainSession::reserve_frames`] (the context and the camera do not change in a
+    /// The static set's own render of this view, made by the first
+    /// [`TrainSession::reserve_frames`] (the static set and the camera do not change in a
     /// session): the steps copy the tiles that no trained Gaussian reaches from it.
-    frozen_render: Option<wgpu::Buffer>,
+    static_render: Option<wgpu::Buffer>,
 }
 
 /// Per-Gaussian buffers of the trained set, sized for its count.
 struct Trained {
     len: u32,
+    /// The parameters Adam updates, SoA sections of `len` ([`SceneInput::packed`]).
+    params: wgpu::Buffer,
     unit: wgpu::Buffer,
     exp_avg: wgpu::Buffer,
     exp_avg_sq: wgpu::Buffer,
@@ -118,10 +132,13 @@ pub struct TrainSession {
     /// Bound where a view has no depth or previous render.
     placeholder: wgpu::Buffer,
     sh_coeffs: u32,
-    n_context: u32,
-    /// The scene: context then trained set, SoA sections of `capacity`.
+    n_static: u32,
+    /// What the frames draw: the static set, then the trained set's snapshot made by
+    /// [`Self::evaluate`]; SoA sections of `capacity`.
     scene: wgpu::Buffer,
     capacity: u32,
+    /// Whether the parameters changed since the snapshot was made.
+    snapshot_stale: bool,
     trained: Trained,
     grads: wgpu::Buffer,
     grads_extra: wgpu::Buffer,
@@ -163,11 +180,11 @@ fn check_len(what: &str, got: usize, want: usize) -> Result<(), RasterError> {
 }
 
 impl TrainSession {
-    /// A session on `renderer`'s device: uploads the frozen `context` (may be empty), the
+    /// A session on `renderer`'s device: uploads the frozen `static_set` (may be empty), the
     /// trained set and the views' targets once.
     pub fn new(
         renderer: &Renderer,
-        context: SceneInput<'_>,
+        static_set: SceneInput<'_>,
         trained: TrainedInput<'_>,
         views: &[ViewTargets<'_>],
         config: TrainConfig,
@@ -183,12 +200,12 @@ impl TrainSession {
             .map(|v| v.camera.width * v.camera.height)
             .max()
             .unwrap_or(0);
-        let (n_context, k_context) = context.validate().map_err(invalid)?;
+        let (n_static, k_static) = static_set.validate().map_err(invalid)?;
         let (n_train, k_train) = trained.gaussians.validate().map_err(invalid)?;
-        let sh_coeffs = if n_train > 0 { k_train } else { k_context };
-        if n_context > 0 && n_train > 0 && k_context != k_train {
+        let sh_coeffs = if n_train > 0 { k_train } else { k_static };
+        if n_static > 0 && n_train > 0 && k_static != k_train {
             return Err(invalid(format!(
-                "the context has {k_context} SH coefficients per channel and the trained set \
+                "the static set has {k_static} SH coefficients per channel and the trained set \
                  {k_train}: give both the same degree"
             )));
         }
@@ -209,11 +226,13 @@ impl TrainSession {
             frame_pixels: 0,
             placeholder: storage(&device, "placeholder", 1),
             sh_coeffs,
-            n_context,
+            n_static,
             scene: storage(&device, "scene", 0),
             capacity: 0,
+            snapshot_stale: true,
             trained: Trained {
                 len: 0,
+                params: storage(&device, "trained parameters", 0),
                 unit: storage(&device, "unit", 0),
                 exp_avg: storage(&device, "exp_avg", 0),
                 exp_avg_sq: storage(&device, "exp_avg_sq", 0),
@@ -239,8 +258,8 @@ impl TrainSession {
             "extra pixel gradients",
             PIXEL_CHANNELS as u64 * max_pixels as u64,
         );
-        session.allocate_scene(n_context + n_train)?;
-        session.write_scene(0, &context);
+        session.allocate_scene(n_static + n_train)?;
+        session.write_scene(0, &static_set);
         session.set_trained(trained)?;
         pop_error(scope)?;
         Ok(session)
@@ -302,7 +321,7 @@ impl TrainSession {
             weight: array("target weight", view.weight),
             depth: view.depth.map(|d| array("target depth", d)),
             previous: view.previous.map(|p| array("previous render", p)),
-            frozen_render: None,
+            static_render: None,
         };
         self.views.push(view);
         Ok(())
@@ -328,8 +347,15 @@ impl TrainSession {
         self.trained.len == 0
     }
 
-    pub fn context_len(&self) -> usize {
-        self.n_context as usize
+    pub fn static_len(&self) -> usize {
+        self.n_static as usize
+    }
+
+    /// The SH degree of every Gaussian in the session.
+    pub fn sh_degree(&self) -> u32 {
+        (0..=3)
+            .find(|&d| sh_coeffs(d) == self.sh_coeffs as usize)
+            .expect("validated SH coefficients")
     }
 
     pub fn views(&self) -> usize {
@@ -375,8 +401,9 @@ impl TrainSession {
         Ok(data)
     }
 
-    /// Makes room for `total` Gaussians (context + trained); a larger scene buffer gets the
-    /// context copied over on the device.
+    /// Makes room for `total` Gaussians (static set + trained); a larger scene buffer gets the
+    /// static set copied over on the device (the snapshot is made again by the next
+    /// [`Self::evaluate`]).
     fn allocate_scene(&mut self, total: u32) -> Result<(), RasterError> {
         if total <= self.capacity && self.capacity > 0 {
             return Ok(());
@@ -394,7 +421,7 @@ impl TrainSession {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         let (mut old_start, mut new_start) = (0, 0);
         for width in section_widths(self.sh_coeffs) {
-            let bytes = 4 * width * self.n_context as u64;
+            let bytes = 4 * width * self.n_static as u64;
             if bytes > 0 && self.capacity > 0 {
                 encoder.copy_buffer_to_buffer(&self.scene, old_start, &scene, new_start, bytes);
             }
@@ -455,8 +482,7 @@ impl TrainSession {
                 check_len(what, d.len(), want)?;
             }
         }
-        self.allocate_scene(self.n_context + n)?;
-        self.write_scene(self.n_context, &t.gaussians);
+        self.allocate_scene(self.n_static + n)?;
         let device = self.device.clone();
         let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
             let buffer = storage(&device, label, len as u64);
@@ -465,6 +491,12 @@ impl TrainSession {
             }
             buffer
         };
+        let params = fresh(
+            "trained parameters",
+            floats,
+            Some(&t.gaussians.packed()),
+            self,
+        );
         let unit = fresh("unit", nn, Some(t.unit), self);
         let exp_avg = fresh("exp_avg", floats, t.exp_avg, self);
         let exp_avg_sq = fresh("exp_avg_sq", floats, t.exp_avg_sq, self);
@@ -477,15 +509,17 @@ impl TrainSession {
         }
         self.trained = Trained {
             len: n,
+            params,
             unit,
             exp_avg,
             exp_avg_sq,
             stats,
         };
-        let grad_floats = self.floats_per_gaussian() * (self.n_context + n) as u64;
+        let grad_floats = self.floats_per_gaussian() * (self.n_static + n) as u64;
         self.grads = storage(&device, "gradients", grad_floats);
         self.grads_extra = storage(&device, "extra gradients", grad_floats);
         self.adam_steps = t.adam_steps;
+        self.snapshot_stale = true;
         self.extra_frame = None;
         self.has_extra = false;
         Ok(())
@@ -494,11 +528,40 @@ impl TrainSession {
     fn scene_buffer(&self) -> SceneBuffer {
         SceneBuffer {
             buffer: self.scene.clone(),
-            len: self.n_context + self.trained.len,
+            len: self.n_static + self.trained.len,
             stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
-            frozen: self.n_context,
+            n_static: self.n_static,
         }
+    }
+
+    /// The evaluate pass: makes the scene's snapshot of the trained set from its parameters
+    /// (a copy of each SoA section) where they changed since the last one. Every forward
+    /// that draws the trained set runs it first.
+    fn evaluate(&mut self) -> Result<(), RasterError> {
+        if !self.snapshot_stale {
+            return Ok(());
+        }
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let (n, mut params_at, mut scene_at) = (self.trained.len as u64, 0, 0);
+        for width in section_widths(self.sh_coeffs) {
+            let bytes = 4 * width * n;
+            if bytes > 0 {
+                let to = scene_at + 4 * width * self.n_static as u64;
+                encoder.copy_buffer_to_buffer(
+                    &self.trained.params,
+                    params_at,
+                    &self.scene,
+                    to,
+                    bytes,
+                );
+            }
+            params_at += bytes;
+            scene_at += 4 * width * self.capacity as u64;
+        }
+        self.submit(encoder)?;
+        self.snapshot_stale = false;
+        Ok(())
     }
 
     fn submit(&self, encoder: wgpu::CommandEncoder) -> Result<(), RasterError> {
@@ -540,17 +603,18 @@ impl TrainSession {
     /// where the loop waits anyway (at the start of a stage, after densification): steps
     /// do not wait for their counts, and a frame with more intersections than room draws
     /// only the background (docs/rasterizer.md, "Frames without a wait"). The first call
-    /// also renders the context alone from each view, which the steps then copy where no
+    /// also renders the static set alone from each view, which the steps then copy where no
     /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        self.evaluate()?;
         for index in 0..self.views.len() {
             let camera = self.views[index].camera;
             renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings, None)?;
         }
         self.extra_frame = None;
         self.check_frames(renderer)?;
-        // With room for the whole scene's frames, the context's own ones fit too.
-        self.render_frozen(renderer)
+        // With room for the whole scene's frames, the static set's own ones fit too.
+        self.render_static(renderer)
     }
 
     /// The renderer's check of the frames since the last one (16 bytes read back): how
@@ -582,12 +646,13 @@ impl TrainSession {
         view: usize,
     ) -> Result<(), RasterError> {
         let v = self.view(view)?;
-        let (camera, frozen_render) = (v.camera, v.frozen_render.clone());
+        let (camera, static_render) = (v.camera, v.static_render.clone());
+        self.evaluate()?;
         let frame = renderer.encode_frame(
             self.scene_buffer(),
             &camera,
             &self.config.settings,
-            frozen_render.as_ref(),
+            static_render.as_ref(),
         )?;
         self.frame_pixels = camera.width * camera.height;
         self.encode_losses(view, renderer.frame_pixels())?;
@@ -597,28 +662,28 @@ impl TrainSession {
         Ok(())
     }
 
-    /// Renders the context alone from every view that has no such render yet, and keeps
-    /// it (the context and the views do not change in a session).
-    fn render_frozen(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
-        if self.n_context == 0 {
+    /// Renders the static set alone from every view that has no such render yet, and keeps
+    /// it (the static set and the views do not change in a session).
+    fn render_static(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        if self.n_static == 0 {
             return Ok(());
         }
-        let context = SceneBuffer {
-            len: self.n_context,
+        let static_set = SceneBuffer {
+            len: self.n_static,
             ..self.scene_buffer()
         };
         for index in 0..self.views.len() {
-            if self.views[index].frozen_render.is_some() {
+            if self.views[index].static_render.is_some() {
                 continue;
             }
             let camera = self.views[index].camera;
-            renderer.encode_frame(context.clone(), &camera, &self.config.settings, None)?;
+            renderer.encode_frame(static_set.clone(), &camera, &self.config.settings, None)?;
             let floats = PIXEL_CHANNELS as u64 * (camera.width * camera.height) as u64;
-            let kept = storage(&self.device, "frozen render", floats);
+            let kept = storage(&self.device, "static render", floats);
             let mut encoder = self.device.create_command_encoder(&Default::default());
             encoder.copy_buffer_to_buffer(renderer.frame_pixels(), 0, &kept, 0, 4 * floats);
             self.submit(encoder)?;
-            self.views[index].frozen_render = Some(kept);
+            self.views[index].static_render = Some(kept);
         }
         Ok(())
     }
@@ -630,7 +695,7 @@ impl TrainSession {
         &mut self,
         view: usize,
         pixels: &[f32],
-    ) -> Result<(Vec<f32>, [f32; LOSS_PARTS]), RasterError> {
+    ) -> Result<(Vec<f32>, LossParts), RasterError> {
         let camera = self.view(view)?.camera;
         let len = PIXEL_CHANNELS * (camera.width * camera.height) as usize;
         check_len("pixels", pixels.len(), len)?;
@@ -661,6 +726,7 @@ impl TrainSession {
                 self.max_pixels, camera.width, camera.height
             )));
         }
+        self.evaluate()?;
         let frame =
             renderer.encode_frame(self.scene_buffer(), camera, &self.config.settings, None)?;
         self.frame_pixels = camera.width * camera.height;
@@ -697,9 +763,8 @@ impl TrainSession {
     pub fn apply_adam(&mut self) -> Result<(), RasterError> {
         self.adam_steps += 1;
         let layout = AdamLayout {
-            n_context: self.n_context,
+            n_static: self.n_static,
             n_train: self.trained.len,
-            stride: self.capacity,
             sh_coeffs: self.sh_coeffs,
             has_extra: self.has_extra,
         };
@@ -711,7 +776,7 @@ impl TrainSession {
             let mut pass = encoder.begin_compute_pass(&Default::default());
             let bindings = AdamBindings {
                 params: &self.adam_params,
-                scene: &self.scene,
+                trained: &self.trained.params,
                 grads: &self.grads,
                 grads_extra: &self.grads_extra,
                 exp_avg: &self.trained.exp_avg,
@@ -723,14 +788,15 @@ impl TrainSession {
                 .encode(&self.device, &mut pass, &bindings, self.trained.len);
         }
         self.has_extra = false;
+        self.snapshot_stale = true;
         self.submit(encoder)
     }
 
-    /// Adam on given gradients (for the context + trained scene, in the backward's
+    /// Adam on given gradients (for the static set + trained scene, in the backward's
     /// layout): what a step does after its backward, for checking the optimiser alone.
     pub fn apply_gradients(&mut self, grads: &[f32]) -> Result<(), RasterError> {
         let floats =
-            self.floats_per_gaussian() as usize * (self.n_context + self.trained.len) as usize;
+            self.floats_per_gaussian() as usize * (self.n_static + self.trained.len) as usize;
         check_len("gradients", grads.len(), floats)?;
         let buffer = self.grads.clone();
         self.upload(&buffer, 0, bytemuck::cast_slice(grads));
@@ -738,53 +804,47 @@ impl TrainSession {
         self.apply_adam()
     }
 
-    /// The last step's loss parts: [L, L1, 1 − SSIM, L_temporal, 1 − Pearson, covered
-    /// weight, whether L_geo applied].
-    pub fn loss(&mut self) -> Result<[f32; LOSS_PARTS], RasterError> {
+    /// The last step's loss and its parts.
+    pub fn loss(&mut self) -> Result<LossParts, RasterError> {
         let loss = self.loss_buffers.loss.clone();
         let parts = self.read(&[(&loss, 0, 4 * LOSS_PARTS as u64)])?;
-        Ok(parts.try_into().expect("LOSS_PARTS floats"))
+        Ok(LossParts::from_floats(
+            parts.try_into().expect("LOSS_PARTS floats"),
+        ))
     }
 
-    /// The scene's sections for Gaussians `first..first + n`, as read-back regions.
-    fn scene_regions(&self, first: u32, n: u32) -> Vec<(wgpu::Buffer, u64, u64)> {
+    /// The whole scene, static set then trained set (its parameters), packed as
+    /// [`SceneInput::packed`]: each section's static part, then its trained part.
+    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
+        let (n_static, n) = (self.n_static as u64, self.trained.len as u64);
         let mut regions = Vec::new();
-        let mut start = 0;
+        let (mut scene_at, mut params_at) = (0, 0);
         for width in section_widths(self.sh_coeffs) {
-            regions.push((
-                self.scene.clone(),
-                4 * (start + width * first as u64),
-                4 * width * n as u64,
-            ));
-            start += width * self.capacity as u64;
+            regions.push((self.scene.clone(), scene_at, 4 * width * n_static));
+            regions.push((self.trained.params.clone(), params_at, 4 * width * n));
+            scene_at += 4 * width * self.capacity as u64;
+            params_at += 4 * width * n;
         }
-        regions
-    }
-
-    fn read_scene(&mut self, first: u32, n: u32) -> Result<Vec<f32>, RasterError> {
-        let regions = self.scene_regions(first, n);
         let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
             regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
         self.read(&borrowed)
     }
 
-    /// The whole scene, context then trained set, packed as [`SceneInput::packed`].
-    pub fn scene(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(0, self.n_context + self.trained.len)
-    }
-
-    /// The trained set's parameters alone, packed as [`SceneInput::packed`].
+    /// The trained set's parameters, packed as [`SceneInput::packed`].
     pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
-        self.read_scene(self.n_context, self.trained.len)
+        let params = self.trained.params.clone();
+        let bytes = 4 * self.floats_per_gaussian() * self.trained.len as u64;
+        self.read(&[(&params, 0, bytes)])
     }
 
     /// Reads the trained set and its optimiser state back (one round trip).
     pub fn state(&mut self) -> Result<TrainState, RasterError> {
         let n = self.trained.len as u64;
         let floats = self.floats_per_gaussian() * n;
-        let mut regions = self.scene_regions(self.n_context, self.trained.len);
         let t = &self.trained;
+        let mut regions = Vec::new();
         for (buffer, len) in [
+            (&t.params, floats),
             (&t.unit, n),
             (&t.exp_avg, floats),
             (&t.exp_avg_sq, floats),

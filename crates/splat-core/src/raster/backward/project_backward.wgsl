@@ -1,6 +1,6 @@
 // Backward of project.wgsl: carries each Gaussian's 2D gradients (summed over its tiles
 // by rasterize_backward.wgsl) to the 3D parameters (mean, log-scale, quaternion, opacity
-// logit, SH), in the same SoA layout as the input. Culled and frozen Gaussians get zeros.
+// logit, SH), in the same SoA layout as the input. Culled and static Gaussians get zeros.
 // After common.wgsl, gaussian_layout.wgsl and gaussian.wgsl; binds the `params` and
 // `gaussians` gaussian.wgsl reads.
 
@@ -36,8 +36,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let grad_offs = gaussian_offsets(n);
     let k_count = params.sh_coeffs;
 
-    // A frozen Gaussian's gradient is not worked out, and a culled one has none.
-    if gid < params.first_trained || tile_counts[gid] == 0u {
+    // A static Gaussian's gradient is not worked out, and a culled one has none.
+    if gid < params.n_static || tile_counts[gid] == 0u {
         write_vec3(grad_offs.means + 3u * gid, vec3<f32>(0.0));
         write_vec3(grad_offs.log_scales + 3u * gid, vec3<f32>(0.0));
         for (var c = 0u; c < 4u; c++) {

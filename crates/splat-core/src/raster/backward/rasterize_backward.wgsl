@@ -5,9 +5,9 @@
 // invocation per Gaussian adding the tile's totals into that Gaussian's ten sums in
 // `gaussian_grads` (zeroed by the host), which project_backward.wgsl carries to the 3D
 // parameters. Nothing is kept per intersection.
-// A frozen context (the Gaussians before `params.first_trained`: a dynamic step's static
+// The frozen static set (the first `params.n_static` Gaussians: a dynamic step's static
 // set) gets no sums, and the walk stops at the tile's front-most trained Gaussian: what is
-// in front of it is frozen and nothing behind depends on it. So the context costs the
+// in front of it is frozen and nothing behind depends on it. So the static set costs the
 // backward its blending arithmetic between the back and that Gaussian, not its sums.
 // After common.wgsl and two parts the host chooses by what the device has
 // (backward/mod.rs, `rasterize_backward_module`):
@@ -91,13 +91,13 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
 
     // The walk's front: the first intersection (in depth order) of a trained Gaussian.
     var start = range.x;
-    if params.first_trained > 0u {
+    if params.n_static > 0u {
         if lid == 0u {
             atomicStore(&walk_start, end);
         }
         workgroupBarrier();
         for (var i = range.x + lid; i < end; i += 256u) {
-            if sorted_gaussians[i] >= params.first_trained {
+            if sorted_gaussians[i] >= params.n_static {
                 atomicMin(&walk_start, i);
                 break;
             }
@@ -179,13 +179,13 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
                 last_depth = xyoz.w;
             }
             // The same Gaussian for the whole workgroup, so every invocation or none sums.
-            if batch_gaussian[k] >= params.first_trained {
+            if batch_gaussian[k] >= params.n_static {
                 sum_grads(k * GRAD_STRIDE, contributes, grads);
             }
         }
         workgroupBarrier();
         // The tile's totals, one global add per Gaussian and value (none for zeros: a
-        // Gaussian whose box touches the tile may reach none of its pixels, and a frozen
+        // Gaussian whose box touches the tile may reach none of its pixels, and a static
         // one has none).
         if lid < count {
             let dst = batch_gaussian[lid] * GRAD_STRIDE;

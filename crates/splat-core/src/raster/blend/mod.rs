@@ -1,7 +1,7 @@
 //! Stage 7 (`rasterize.wgsl`): per-tile front-to-back blending of the tile-sorted
 //! intersections, one 16×16 workgroup per tile; writes each pixel's colour, alpha and
-//! depth, and the state the backward walks back from; copies the tiles of a frozen context
-//! alone from that context's own render where the caller has one.
+//! depth, and the state the backward walks back from; copies the tiles of a frozen static set
+//! alone from that static set's own render where the caller has one.
 
 use super::gpu::{compile, run_per_tile};
 use super::COMMON_WGSL;
@@ -29,8 +29,8 @@ pub(crate) struct BlendBuffers<'a> {
     pub ranges: &'a wgpu::Buffer,
     pub pixels: &'a wgpu::Buffer,
     pub pixel_state: &'a wgpu::Buffer,
-    /// The frozen context's own render of the camera (any buffer when the frame has none).
-    pub frozen_pixels: &'a wgpu::Buffer,
+    /// The static set's own render of the camera (any buffer when the frame has none).
+    pub static_pixels: &'a wgpu::Buffer,
 }
 
 pub(crate) struct BlendKernel {
@@ -63,7 +63,7 @@ impl BlendKernel {
                 (3, b.ranges),
                 (4, b.pixels),
                 (5, b.pixel_state),
-                (6, b.frozen_pixels),
+                (6, b.static_pixels),
             ],
             tiles,
         );

@@ -12,9 +12,9 @@
 @group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;
 @group(0) @binding(4) var<storage, read_write> out_pixels: array<f32>;
 @group(0) @binding(5) var<storage, read_write> pixel_state: array<vec2<u32>>;
-// The frozen context's own render of this camera (H·W·5, as `out_pixels`), where
-// `params.frozen_render` is 1: a tile no trained Gaussian reaches is copied from it.
-@group(0) @binding(6) var<storage, read> frozen_pixels: array<f32>;
+// The static set's own render of this camera (H·W·5, as `out_pixels`), where
+// `params.static_render` is 1: a tile no trained Gaussian reaches is copied from it.
+@group(0) @binding(6) var<storage, read> static_pixels: array<f32>;
 
 const BATCH: u32 = 256u;
 
@@ -34,16 +34,16 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
     let centre = pixel.centre;
     let range = ranges[pixel.tile];
 
-    // A tile of the frozen context alone blends exactly as the context's own render did
+    // A tile of the frozen static set alone blends exactly as the static set's own render did
     // (the same Gaussians in the same depth order): copy it instead. Its pixel state tells
     // the backward that nothing here contributed, so it walks nothing.
-    if params.frozen_render != 0u {
+    if params.static_render != 0u {
         if lid == 0u {
             atomicStore(&trained_count, 0u);
         }
         workgroupBarrier();
         for (var i = range.x + lid; i < range.y; i += 256u) {
-            if sorted_gaussians[i] >= params.first_trained {
+            if sorted_gaussians[i] >= params.n_static {
                 atomicAdd(&trained_count, 1u);
                 break;
             }
@@ -56,9 +56,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_id) lxy
             if inside {
                 let pix = pixel.index;
                 for (var c = 0u; c < 5u; c++) {
-                    out_pixels[pix * 5u + c] = frozen_pixels[pix * 5u + c];
+                    out_pixels[pix * 5u + c] = static_pixels[pix * 5u + c];
                 }
-                pixel_state[pix] = vec2<u32>(bitcast<u32>(1.0 - frozen_pixels[pix * 5u + 3u]), range.x);
+                pixel_state[pix] = vec2<u32>(bitcast<u32>(1.0 - static_pixels[pix * 5u + 3u]), range.x);
             }
             return;
         }

@@ -320,31 +320,31 @@ fn intersections_just_under_the_binding_limit_render() {
 }
 
 #[test]
-fn a_frame_over_a_frozen_render_copies_the_tiles_of_the_context_alone() {
+fn a_frame_over_a_static_render_copies_the_tiles_of_the_static_set_alone() {
     let mut renderer = renderer_with_limit(None);
     renderer.reserve_intersections(50_000).expect("room");
     let (w, h) = (96u32, 64u32);
     let cam = camera(w, h);
     let len = 5 * (w * h) as usize;
-    // A context over the whole view and three trained Gaussians: most tiles hold the
-    // context alone.
+    // A static set over the whole view and three trained Gaussians: most tiles hold the
+    // static set alone.
     let mut scene_set = random_set(400, 61);
-    let n_context = scene_set.len() as u32;
+    let n_static = scene_set.len() as u32;
     scene_set.extend_from(&random_set(3, 62));
     let scene = SceneBuffer {
-        frozen: n_context,
+        n_static,
         ..renderer
             .upload(&SceneInput::from(&scene_set))
             .expect("upload")
     };
-    let context = SceneBuffer {
-        len: n_context,
+    let static_set = SceneBuffer {
+        len: n_static,
         ..scene.clone()
     };
     renderer
-        .encode_frame(context, &cam, &settings(), None)
-        .expect("context frame");
-    let context_pixels = read_floats(&renderer, renderer.frame_pixels(), len);
+        .encode_frame(static_set, &cam, &settings(), None)
+        .expect("static set's frame");
+    let static_pixels = read_floats(&renderer, renderer.frame_pixels(), len);
     let frame = renderer
         .encode_frame(scene.clone(), &cam, &settings(), None)
         .expect("blended frame");
@@ -357,12 +357,12 @@ fn a_frame_over_a_frozen_render_copies_the_tiles_of_the_context_alone() {
         .expect("backward");
     let want_grads = read_floats(&renderer, &grads, 23 * n_all);
 
-    // Over the context's true render the frame is the blended one, bit for bit, and so
+    // Over the static set's true render the frame is the blended one, bit for bit, and so
     // are its gradients (up to the atomics' order).
-    let frozen = floats(&renderer, &context_pixels);
+    let static_render = floats(&renderer, &static_pixels);
     let frame = renderer
-        .encode_frame(scene.clone(), &cam, &settings(), Some(&frozen))
-        .expect("frame over the frozen render");
+        .encode_frame(scene.clone(), &cam, &settings(), Some(&static_render))
+        .expect("frame over the static render");
     assert!(read_floats(&renderer, renderer.frame_pixels(), len) == blended);
     renderer
         .encode_backward(&frame, &ones, &grads)
@@ -370,8 +370,8 @@ fn a_frame_over_a_frozen_render_copies_the_tiles_of_the_context_alone() {
     assert_same_up_to_tile_order(&read_floats(&renderer, &grads, 23 * n_all), &want_grads);
 
     // Over a marked render (every value + 1) the marks show which tiles were copied: those
-    // where the context alone draws, and both kinds of tile occur.
-    let marked: Vec<f32> = context_pixels.iter().map(|v| v + 1.0).collect();
+    // where the static set alone draws, and both kinds of tile occur.
+    let marked: Vec<f32> = static_pixels.iter().map(|v| v + 1.0).collect();
     let marked = floats(&renderer, &marked);
     renderer
         .encode_frame(scene, &cam, &settings(), Some(&marked))
@@ -379,13 +379,13 @@ fn a_frame_over_a_frozen_render_copies_the_tiles_of_the_context_alone() {
     let got = read_floats(&renderer, renderer.frame_pixels(), len);
     let tiles_x = w.div_ceil(TILE_SIZE);
     let mut copied = vec![None; (tiles_x * h.div_ceil(TILE_SIZE)) as usize];
-    for (i, (px, (want, context))) in got
+    for (i, (px, (want, alone))) in got
         .chunks(5)
-        .zip(blended.chunks(5).zip(context_pixels.chunks(5)))
+        .zip(blended.chunks(5).zip(static_pixels.chunks(5)))
         .enumerate()
     {
         let (x, y) = (i as u32 % w, i as u32 / w);
-        let is_copy = px.iter().zip(context).all(|(a, b)| *a == b + 1.0);
+        let is_copy = px.iter().zip(alone).all(|(a, b)| *a == b + 1.0);
         assert!(is_copy || px == want, "pixel ({x}, {y})");
         let tile = &mut copied[(y / TILE_SIZE * tiles_x + x / TILE_SIZE) as usize];
         assert_eq!(*tile.get_or_insert(is_copy), is_copy, "one tile, one way");
