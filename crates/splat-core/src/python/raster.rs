@@ -1,4 +1,5 @@
-//! Python bindings of the rasteriser: `render_forward`, `render_backward`, `adapter_info`.
+//! Python bindings of the rasteriser: `render_forward`, `render_backward`, `footprints`,
+//! `adapter_info`.
 //!
 //! One process-wide [`Renderer`] (device, pipelines, buffers) is created on first use
 //! and reused; calls are serialised by a mutex and run with the GIL released.
@@ -157,6 +158,37 @@ fn render_backward<'py>(
     Ok(out)
 }
 
+/// Each Gaussian's footprint as the projection computes it for the blending (N*3 float32:
+/// pixel centre x, y and radius; radius 0 where it is culled).
+#[pyfunction]
+#[pyo3(signature = (means, log_scales, quats, opacity_logits, sh, k, world_to_cam, half_fov_tan, width, height, antialiased))]
+#[allow(clippy::too_many_arguments)]
+fn footprints<'py>(
+    py: Python<'py>,
+    means: PyReadonlyArray1<'py, f32>,
+    log_scales: PyReadonlyArray1<'py, f32>,
+    quats: PyReadonlyArray1<'py, f32>,
+    opacity_logits: PyReadonlyArray1<'py, f32>,
+    sh: PyReadonlyArray1<'py, f32>,
+    k: PyReadonlyArray2<'py, f64>,
+    world_to_cam: PyReadonlyArray2<'py, f64>,
+    half_fov_tan: [f64; 2],
+    width: u32,
+    height: u32,
+    antialiased: bool,
+) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    let camera = camera_from(&k, &world_to_cam, half_fov_tan, width, height)?;
+    let input = scene(&means, &log_scales, &quats, &opacity_logits, &sh)?;
+    let settings = RenderSettings {
+        antialiased,
+        ..Default::default()
+    };
+    let footprints = py
+        .detach(|| with_renderer(|r| r.footprints(&input, &camera, &settings)))
+        .map_err(to_py)?;
+    Ok(PyArray1::from_vec(py, footprints.concat()))
+}
+
 /// The adapter the renderer uses: {name, backend, device_type, driver} and which of the
 /// backward's paths it takes: {subgroups, float_atomics} ("yes" or "no").
 #[pyfunction]
@@ -187,6 +219,7 @@ fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(footprints, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
     Ok(())
 }
