@@ -47,7 +47,7 @@ REACH_SLACK = 1 / 32
 # the static Gaussians kept those of the float64 bound this module computed before the
 # renderer reported footprints (it added a pixel for its own rounding), so that training's
 # outputs stayed bit-identical through that change.
-FOOTPRINT_MARGIN = 1.0
+FOOTPRINT_MARGIN = 1
 
 
 @dataclass(frozen=True)
@@ -82,15 +82,19 @@ def drawn_footprints(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(N,) bool: the Gaussians whose footprint (with ``backend``'s rasteriser, grown by
     FOOTPRINT_MARGIN) reaches ``camera``'s image, and every Gaussian's centre (N, 2) and that
-    grown radius (N,)."""
-    f = footprints(g, camera, backend)
-    x, y, radius = f.centre[:, 0], f.centre[:, 1], f.radius + FOOTPRINT_MARGIN
+    grown radius (N,). The footprints are taken in the image grown by the margin on every
+    side, so that the wgpu kernel's cull of what reaches no tile spares a Gaussian whose
+    grown footprint reaches the image while its own does not."""
+    m = FOOTPRINT_MARGIN
+    grown = camera.window(-m, -m, camera.width + 2 * m, camera.height + 2 * m)
+    f = footprints(g, grown, backend)
+    x, y, radius = f.centre[:, 0], f.centre[:, 1], f.radius
     drawn = (
-        (f.radius >= 0)
-        & (x + radius >= 0) & (x - radius <= camera.width)
-        & (y + radius >= 0) & (y - radius <= camera.height)
+        (radius >= 0)
+        & (x + radius >= 0) & (x - radius <= grown.width)
+        & (y + radius >= 0) & (y - radius <= grown.height)
     )  # fmt: skip
-    return drawn, f.centre, radius
+    return drawn, f.centre - m, radius + m
 
 
 def touching(g: Gaussians, cameras: list[Camera], backend: str) -> torch.Tensor:
