@@ -1,8 +1,9 @@
-"""The wgpu rasteriser against the pure-torch reference (values and gradients), the
-reference against finite differences, extreme inputs, and a real 3DGS scene."""
+"""The wgpu rasteriser against the pure-torch reference (values, gradients and footprints),
+the reference against finite differences, extreme inputs, and a real 3DGS scene."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -16,7 +17,7 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.renderer import adapter_info, render
+from pano4d.renderer import adapter_info, footprints, render
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 TOL = 1e-4
@@ -543,12 +544,99 @@ def test_zero_one_and_a_million_gaussians() -> None:
     assert torch.isfinite(out.rgb).all() and (out.alpha > 0.9).float().mean() > 0.5
 
 
+# --- footprints --------------------------------------------------------------------------
+
+def footprint_scene() -> Gaussians:
+    """Random Gaussians all around the camera (some behind it, some off screen), from a
+    fraction of a pixel to the whole screen, and the extremes one by one. Their axes stay
+    within e of each other: a needle's antialiased opacity is a difference of float32
+    products, so whether it passes the 1/255 cut is rounding, on either side."""
+    spread = random_scene(800, seed=21, centre=(0.0, 0.0, 0.0), spread=6.0)
+    order = torch.randperm(len(spread), generator=torch.Generator().manual_seed(23))
+    level = torch.linspace(-9.0, 1.0, len(spread))[order]
+    spread = dataclasses.replace(spread, log_scales=level[:, None] + spread.log_scales + 2.0)
+    return Gaussians.cat([spread, *(one(*case) for case in FOOTPRINT_EXTREMES)])
+
+
+# (mean, log_scale, opacity) of one Gaussian each.
+FOOTPRINT_EXTREMES = [
+    ((-3.0, 0.0, 0.0), -1.0, 0.9),             # behind the camera
+    ((0.005, 0.0, 0.0), 0.0, 0.9),             # mean behind the near plane
+    ((0.05, 0.0, 0.0), -1.0, 0.9),             # crossing the near plane
+    ((0.02, 0.001, 0.0), -6.0, 0.9),           # just past the near plane, small
+    ((5.0, 0.1, 0.0), -12.0, 0.9),             # sub-pixel: the low-pass is its footprint
+    ((5.0, 0.0, 0.0), 40.0, 0.9),              # huge scale (clamped), screen-filling
+    ((2.0, 0.0, 0.0), 3.0, 0.99),              # screen-filling
+    ((5.0, 0.0, 0.0), -1.0, 1e-6),             # under the opacity cut
+    ((5.0, -9.0, 0.0), -3.0, 0.9),             # beside the screen
+    ((1e4, 0.0, 0.0), 5.0, 0.9),               # depth 1e4
+    ((5.0, float("nan"), 0.0), -1.0, 0.9),     # non-finite
+    ((5.0, 0.0, 0.0), float("inf"), 0.9),      # non-finite
+]
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_footprints_of_the_kernel_are_the_references(antialiased: bool) -> None:
+    """The wgpu projection's footprints are the torch reference's: the same centres, radii
+    within a pixel (float32 rounding under the ceil), and the same Gaussians culled except
+    those the kernel culls for reaching no tile of the image."""
+    g, cam = footprint_scene(), camera(96, 64)
+    a = footprints(g, cam, "wgpu", antialiased)
+    b = footprints(g, cam, "torch", antialiased)
+    assert a.centre.shape == (len(g), 2) and a.radius.shape == (len(g),)
+    both_drawn = (a.radius >= 0) & (b.radius >= 0)
+    assert (a.radius[both_drawn] - b.radius[both_drawn]).abs().max() <= 1
+    scale = 1 + b.centre[both_drawn].abs()
+    assert ((a.centre[both_drawn] - b.centre[both_drawn]).abs() / scale).max() < 1e-4
+    x, y, r = b.centre[:, 0], b.centre[:, 1], b.radius
+    off_screen = (x + r < 0) | (x - r > cam.width) | (y + r < 0) | (y - r > cam.height)
+    assert ((a.radius < 0) == (b.radius < 0))[~off_screen].all()
+    assert ((a.radius < 0) & (b.radius >= 0) & ~off_screen).sum() == 0
+    assert ((a.radius >= 0) & (b.radius < 0)).sum() == 0
+    extremes = a.radius[-len(FOOTPRINT_EXTREMES):].tolist()
+    culled = [0, 1, 7, 8, 10, 11]  # behind, near plane, opacity, off screen, non-finite
+    assert all(extremes[i] == -1 for i in culled)
+    # Sub-pixel: the low-pass alone, ceil(3·sqrt(0.3 + sqrt(0.1))); antialiased, its opacity
+    # falls under the cut.
+    assert extremes[4] == (-1 if antialiased else 3)
+    assert extremes[6] > cam.width  # screen-filling
+    assert int(both_drawn.sum()) > 100 and int((a.radius < 0).sum()) > 50
+
+
+@pytest.mark.parametrize("backend", ["wgpu", "torch"])
+def test_a_gaussian_changes_no_pixel_beyond_its_footprint(backend: str) -> None:
+    """Rendered with and without each Gaussian, the pixels that differ lie within its
+    reported footprint, and a culled one changes none."""
+    g = Gaussians.cat([random_scene(40, seed=22, spread=2.0, log_scale=(-5.0, -0.5)),
+                       *(one(*case) for case in FOOTPRINT_EXTREMES)])  # fmt: skip
+    cam = camera(48, 32)
+    f = footprints(g, cam, backend)
+    pixels = cam.pixel_grid()
+    with torch.no_grad():
+        whole = render(g, cam, backend=backend)
+        for i in range(len(g)):
+            rest = g[torch.arange(len(g)) != i]
+            out = render(rest, cam, backend=backend)
+            changed = ((out.rgb != whole.rgb).any(-1) | (out.alpha != whole.alpha)
+                       | (out.depth != whole.depth))  # fmt: skip
+            if f.radius[i] < 0:
+                assert not changed.any(), f"culled Gaussian {i} changed pixels"
+                continue
+            distance = torch.linalg.norm(pixels[changed] - f.centre[i], dim=-1)
+            assert (distance <= f.radius[i]).all(), (
+                f"Gaussian {i} changed a pixel {float(distance.max()):.2f} px from its centre, "
+                f"beyond its radius {float(f.radius[i])}"
+            )
+
+
 def test_invalid_input_raises() -> None:
     g = random_scene(3, seed=0)
     with pytest.raises(ValueError):
         render(g, camera(8, 8), backend="vulkan")
     with pytest.raises(ValueError):
         render(g, camera(8, 8), background=torch.tensor([0.0, float("nan"), 0.0]))
+    with pytest.raises(ValueError):
+        footprints(g, camera(8, 8), backend="vulkan")
 
 
 def test_adapter_info_names_the_adapter() -> None:

@@ -55,10 +55,10 @@ def scene() -> dict[str, object]:
     previous = full + 0.05 * torch.randn(H, W, 3, generator=gen)
     depth = 4.0 + torch.rand(H, W, generator=gen)
     views = TrainViews([camera], target[None], torch.ones(1, H, W), depth[None], previous[None])
-    window = reach_window(camera, torch.zeros(H, W), dynamic)
+    window = reach_window(camera, torch.zeros(H, W), dynamic, "wgpu")
     s = render(static, camera)
     windows = windowed(views, [window], [s])
-    context = static[touching(static, windows.cameras)]
+    context = static[touching(static, windows.cameras, "wgpu")]
     return {
         "camera": camera, "static": static, "dynamic": dynamic, "views": views,
         "window": window, "windows": windows, "context": context,
@@ -72,7 +72,7 @@ def test_the_window_and_the_static_set_follow_the_dynamic_set(scene: dict) -> No
     assert 0 < len(context) < 0.9 * len(static)
     # Every static Gaussian left out draws nothing into the window.
     camera = scene["windows"].cameras[0]
-    dropped = static[~touching(static, [camera])]
+    dropped = static[~touching(static, [camera], "wgpu")]
     assert float(render(dropped, camera).alpha.max()) == 0.0
 
 

@@ -89,6 +89,9 @@ def render_backward(
 ) -> GaussianArrays:
     """The gradient w.r.t. each array of ``gaussians``, in its shape."""
 
+def footprints(gaussians: GaussianArrays, view: View, *, antialiased: bool) -> _F32:
+    """N·3: each Gaussian's pixel centre x, y and footprint radius (0 where culled)."""
+
 def adapter_info() -> dict[str, str]:
     """name, backend, device_type, driver, subgroups and float_atomics ("yes" / "no")."""
 

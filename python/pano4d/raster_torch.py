@@ -9,8 +9,11 @@ kernels (``crates/splat-core/src/raster/**/*.wgsl``):
   ``Camera.half_fov_tan``: a window of a view keeps it), a 0.3 px²
   low-pass, optional antialiasing (opacity · sqrt(det Σ / det(Σ + 0.3 I)));
 - culled: any non-finite parameter, camera z < 0.01, det(Σ + 0.3 I) <= 0, opacity
-  < 1/255; zero quaternions (|q|² < 1e-12) become the identity; log-scales are clamped
-  to [-12, 8];
+  < 1/255, a centre or footprint radius that is not finite; zero quaternions (|q|² <
+  1e-12) become the identity; log-scales are clamped to [-12, 8];
+- footprint radius: ceil(3·sqrt(λmax)), λmax = m + sqrt(max(0.1, m² − det)) of Σ + 0.3 I
+  (m its mean eigenvalue): beyond it power < −4.5, so a Gaussian changes no pixel there
+  (``pano4d.renderer.footprints`` reports it; this blending, dense, needs no bound);
 - colour: SH (degree 0–3) for the direction mean − camera centre, + 0.5, clamped at 0;
 - blending front to back in (z, index) order: alpha = min(0.999, o·exp(power)); skip
   power > 0, power < −4.5 or alpha < 1/255; stop before T would drop below 1e-4.
@@ -83,6 +86,8 @@ class Projected:
     opacity: torch.Tensor  # (M,)
     depth: torch.Tensor  # (M,) camera z
     rgb: torch.Tensor  # (M, 3)
+    radius: torch.Tensor  # (M,) footprint radius in pixels (module docstring), no gradient
+    index: torch.Tensor  # (M,) int64: each one's row in the Gaussians
 
 
 def ewa_covariance(
@@ -91,7 +96,7 @@ def ewa_covariance(
 ) -> torch.Tensor:
     """The 2D covariance (N, 2, 2) of Gaussians at camera-space means ``t`` (N, 3) with
     1/z ``rz`` (N,), before the low-pass: J W M Mᵀ Wᵀ Jᵀ with the Jacobian's x/z, y/z
-    clamped (module docstring), in ``t``'s dtype. lift.windows bounds footprints with it."""
+    clamped (module docstring), in ``t``'s dtype."""
     W = camera.R.to(t)
     tan_x, tan_y = camera.half_fov_tan
     lim_x = JACOBIAN_CLAMP * tan_x
@@ -150,10 +155,16 @@ def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype)
         [camera.fx * t[:, 0] * rz + camera.cx, camera.fy * t[:, 1] * rz + camera.cy], dim=-1
     )
     conic = torch.stack([c1 / det1, -b0 / det1, a1 / det1], dim=-1)
+    mid = 0.5 * (a1 + c1).detach()
+    radius = torch.ceil(3.0 * torch.sqrt(mid + torch.sqrt(
+        torch.clamp(mid * mid - det1.detach(), min=0.1))))  # fmt: skip
+    visible = visible & torch.isfinite(radius) & torch.isfinite(mean2d.detach()).all(-1)
     index = torch.nonzero(visible).squeeze(1)
     # Front to back by z; the stable sort keeps index order among equal depths.
     index = index[torch.sort(z[index].detach(), stable=True).indices]
-    return Projected(mean2d[index], conic[index], opacity[index], z[index], rgb[index])
+    return Projected(
+        mean2d[index], conic[index], opacity[index], z[index], rgb[index], radius[index], index
+    )
 
 
 def blend(

@@ -1,5 +1,6 @@
 """``render``: Gaussians + camera → rgb, alpha, expected depth (docs/design.md, public API,
-exported as ``pano4d.render``; this module is ``pano4d.renderer`` so the two names differ).
+exported as ``pano4d.render``; this module is ``pano4d.renderer`` so the two names differ),
+and ``footprints``: where each Gaussian can draw, as the rasteriser bounds it.
 
 ``backend="wgpu"`` runs the Rust compute rasteriser (``pano4d._core``) as a
 ``torch.autograd.Function``: inputs go to the host as float32, the outputs come back on
@@ -19,7 +20,7 @@ import torch
 from pano4d.camera import Camera
 from pano4d.extension import core, flat, gaussian_arrays, view
 from pano4d.gaussians import Gaussians
-from pano4d.raster_torch import render_torch
+from pano4d.raster_torch import project, render_torch
 
 BACKENDS = ("wgpu", "torch")
 # Expected depth is D / alpha where alpha exceeds this, else 0.
@@ -31,6 +32,17 @@ class RenderOutput:
     rgb: torch.Tensor  # (H, W, 3)
     alpha: torch.Tensor  # (H, W)
     depth: torch.Tensor  # (H, W) expected z-depth, 0 where nothing was drawn
+
+
+@dataclass
+class Footprints:
+    """Each Gaussian's footprint in a camera's image, as the rasteriser computes it for its
+    blending: it changes no pixel whose centre lies farther than ``radius`` from ``centre``
+    (3σ of the projected covariance with the 0.3 px² low-pass, rounded up to whole pixels;
+    docs/rasterizer.md)."""
+
+    centre: torch.Tensor  # (N, 2) pixels; 0 where culled
+    radius: torch.Tensor  # (N,) pixels; −1 where culled: it draws nothing in the image
 
 
 def adapter_info() -> dict[str, str]:
@@ -117,3 +129,32 @@ def render(
         torch.zeros_like(alpha),
     )
     return RenderOutput(rgb.to(device), alpha.to(device), depth.to(device))
+
+
+def footprints(
+    gaussians: Gaussians, camera: Camera, backend: str = "wgpu", antialiased: bool = False
+) -> Footprints:
+    """The ``Footprints`` of ``gaussians`` in ``camera``, from the projection alone of the
+    rasteriser ``render`` uses with the same ``backend`` and ``antialiased`` (no blending).
+
+    Culled, radius −1: what that projection culls (docs/rasterizer.md); the wgpu kernel
+    also culls a Gaussian whose footprint reaches no 16-pixel tile of the image, which the
+    dense torch reference has no need to. Float32 on the Gaussians' device (the torch
+    backend keeps float64, as ``render``).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    device = gaussians.device
+    if backend == "torch":
+        dtype = torch.float64 if gaussians.means.dtype == torch.float64 else torch.float32
+        with torch.no_grad():
+            p = project(gaussians, camera, antialiased, dtype)
+        centre = torch.zeros(len(gaussians), 2, dtype=dtype, device=p.mean2d.device)
+        radius = torch.full((len(gaussians),), -1.0, dtype=dtype, device=p.mean2d.device)
+        centre[p.index], radius[p.index] = p.mean2d, p.radius
+        return Footprints(centre.to(device), radius.to(device))
+    out = core.footprints(gaussian_arrays(gaussians), view(camera), antialiased=antialiased)
+    xyr = torch.from_numpy(out).reshape(-1, 3)
+    # The kernel writes radius 0 for a culled Gaussian; a drawn one's is at least 3.
+    radius = torch.where(xyr[:, 2] > 0, xyr[:, 2], torch.full_like(xyr[:, 2], -1.0))
+    return Footprints(xyr[:, :2].to(device), radius.to(device))

@@ -565,9 +565,10 @@ def fit_dynamic(
             # The window holds t − 1's set too, so that outside it t − 1's render (L_temporal's
             # target) is the static render.
             drawn = dynamic if previous is None else Gaussians.cat([dynamic, previous])
-            reach = [reach_window(cameras[i], moving[i], drawn) for i in seeing]
+            backend = inputs.render_backend
+            reach = [reach_window(cameras[i], moving[i], drawn, backend) for i in seeing]
             window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
-            context = static[touching(static, window_cameras)]
+            context = static[touching(static, window_cameras, backend)]
         if previous is not None and reach is not None:  # L_temporal's target: t − 1's render
             with torch.no_grad():
                 views.previous = previous_in_windows(

@@ -20,8 +20,9 @@ Why that is exact (tests/test_windows.py checks one step against the whole view)
   not at the view's) read only pixels that cannot change, so they are constants that
   ``outside_sums`` takes back out (it computes the window's own sums on the static render
   the same way and subtracts them from the whole view's);
-- the static Gaussians dropped from a step cannot draw into any window (a conservative
-  footprint, the rasteriser's own), so the window's pixels are the whole render's.
+- the static Gaussians dropped from a step cannot draw into any window (the footprints
+  the rasteriser itself reports, ``pano4d.renderer.footprints``, with the backend the
+  stage renders with), so the window's pixels are the whole render's.
 """
 
 from __future__ import annotations
@@ -35,17 +36,18 @@ import torch
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
 from pano4d.lift.optimize import OUTSIDE_SUMS, SSIM_WINDOW, TrainViews, ssim_map
-from pano4d.raster_torch import LOW_PASS, NEAR_PLANE, ewa_covariance
-from pano4d.renderer import RenderOutput
+from pano4d.renderer import RenderOutput, footprints
 
 SSIM_MARGIN = SSIM_WINDOW  # 2r + 1 pixels between the reach and the window's edge (above)
 # What the dynamic set may move or grow beyond its footprints during a stage, as a share of
 # the view's side (4 pixels at draft's 128, 16 at balanced's 512).
 REACH_SLACK = 1 / 32
-SIGMAS = 3.0  # the rasteriser's footprint: 3σ of the projected Gaussian
-# Pixels added to the footprint for float rounding (float64 here, float32 on the device):
-# dropping a Gaussian that draws into a window would change the render.
-PIXEL_SAFETY = 1.0
+# Pixels added to every footprint, in the reach and in the static Gaussians kept. Exactness
+# needs none (the footprints are the rasteriser's own); this pixel keeps the windows and
+# the static Gaussians kept those of the float64 bound this module computed before the
+# renderer reported footprints (it added a pixel for its own rounding), so that training's
+# outputs stayed bit-identical through that change.
+FOOTPRINT_MARGIN = 1
 
 
 @dataclass(frozen=True)
@@ -75,64 +77,49 @@ class ViewWindow:
         return self.width * self.height / (view.width * view.height)
 
 
-def footprints(g: Gaussians, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pixel centre (N, 2) and footprint radius (N,) of each Gaussian in ``camera``, as the
-    rasteriser computes them (3·sqrt(λmax(Σ2D + 0.3 I)), rounded up; a Gaussian changes no
-    pixel beyond it) plus PIXEL_SAFETY for float rounding, in float64; radius −1 where the
-    rasteriser culls it (behind the near plane, or not finite)."""
-    means = g.means.detach().to("cpu", torch.float64)
-    pc = camera.world_to_camera(means)
-    z = pc[:, 2]
-    visible = z >= NEAR_PLANE
-    rz = 1.0 / torch.where(visible, z, torch.ones_like(z))
-    cov = ewa_covariance(
-        pc, rz,
-        g.log_scales.detach().to("cpu", torch.float64),
-        g.quats.detach().to("cpu", torch.float64),
-        camera,
+def drawn_footprints(
+    g: Gaussians, camera: Camera, backend: str
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(N,) bool: the Gaussians whose footprint (with ``backend``'s rasteriser, grown by
+    FOOTPRINT_MARGIN) reaches ``camera``'s image, and every Gaussian's centre (N, 2) and that
+    grown radius (N,). The footprints are taken in the image grown by the margin on every
+    side, so that the wgpu kernel's cull of what reaches no tile spares a Gaussian whose
+    grown footprint reaches the image while its own does not."""
+    m = FOOTPRINT_MARGIN
+    grown = camera.window(-m, -m, camera.width + 2 * m, camera.height + 2 * m)
+    f = footprints(g, grown, backend)
+    x, y, radius = f.centre[:, 0], f.centre[:, 1], f.radius
+    drawn = (
+        (radius >= 0)
+        & (x + radius >= 0) & (x - radius <= grown.width)
+        & (y + radius >= 0) & (y - radius <= grown.height)
     )  # fmt: skip
-    a, b, c = cov[:, 0, 0] + LOW_PASS, cov[:, 0, 1], cov[:, 1, 1] + LOW_PASS
-    mid = 0.5 * (a + c)
-    lam = mid + torch.sqrt(torch.clamp(mid * mid - (a * c - b * b), min=0.1))
-    radius = torch.ceil(SIGMAS * torch.sqrt(lam)) + PIXEL_SAFETY
-    centre = torch.stack([camera.fx * pc[:, 0] * rz + camera.cx,
-                          camera.fy * pc[:, 1] * rz + camera.cy], dim=-1)  # fmt: skip
-    finite = torch.isfinite(centre).all(-1) & torch.isfinite(radius)
-    return centre, torch.where(visible & finite, radius, torch.full_like(radius, -1.0))
+    return drawn, f.centre - m, radius + m
 
 
-def touching(g: Gaussians, cameras: list[Camera]) -> torch.Tensor:
-    """(N,) bool: the Gaussians that can draw into some camera's image."""
-    keep = torch.zeros(len(g), dtype=torch.bool)
+def touching(g: Gaussians, cameras: list[Camera], backend: str) -> torch.Tensor:
+    """(N,) bool: the Gaussians that can draw into some camera's image with ``backend``'s
+    rasteriser."""
+    keep = torch.zeros(len(g), dtype=torch.bool, device=g.device)
     for camera in cameras:
-        centre, radius = footprints(g, camera)
-        x, y = centre[:, 0], centre[:, 1]
-        keep |= (
-            (radius >= 0)
-            & (x + radius >= 0)
-            & (x - radius <= camera.width)
-            & (y + radius >= 0)
-            & (y - radius <= camera.height)
-        )
-    return keep.to(g.means.device)
+        keep |= drawn_footprints(g, camera, backend)[0]
+    return keep
 
 
-def reach_window(camera: Camera, moving: torch.Tensor, dynamic: Gaussians) -> ViewWindow:
+def reach_window(
+    camera: Camera, moving: torch.Tensor, dynamic: Gaussians, backend: str
+) -> ViewWindow:
     """The window of ``camera``'s view that a step must render: the bounding box of the
     pixels the moving region (``moving``: (h, w), > 0 where the view sees it) or the dynamic
-    set can reach, grown by REACH_SLACK and SSIM_MARGIN, within the view."""
+    set's footprints with ``backend``'s rasteriser can reach, grown by REACH_SLACK and
+    SSIM_MARGIN, within the view."""
     ys, xs = torch.nonzero(moving > 0, as_tuple=True)
     lo = [float(xs.min()), float(ys.min())] if len(xs) else [math.inf, math.inf]
     hi = [float(xs.max()) + 1, float(ys.max()) + 1] if len(xs) else [-math.inf, -math.inf]
     if len(dynamic):
-        centre, radius = footprints(dynamic, camera)
-        drawn = (
-            (radius >= 0)
-            & (centre[:, 0] + radius >= 0) & (centre[:, 0] - radius <= camera.width)
-            & (centre[:, 1] + radius >= 0) & (centre[:, 1] - radius <= camera.height)
-        )  # fmt: skip
+        drawn, centre, radius = drawn_footprints(dynamic, camera, backend)
         if bool(drawn.any()):
-            c, r = centre[drawn], radius[drawn]
+            c, r = centre[drawn].double(), radius[drawn].double()
             lo = [min(lo[i], float((c[:, i] - r).min())) for i in (0, 1)]
             hi = [max(hi[i], float((c[:, i] + r).max())) for i in (0, 1)]
     size = (camera.width, camera.height)

@@ -1,5 +1,6 @@
 //! Python bindings of the rasteriser: the camera a render is seen by (`View`),
 //! `render_forward` (a `RasterOutput`), `render_backward` (gradients as `GaussianArrays`),
+//! `footprints`,
 //! `adapter_info`.
 //!
 //! One process-wide [`Renderer`] (device, pipelines, buffers) is created on first use
@@ -181,6 +182,24 @@ fn render_backward(
     ))
 }
 
+/// Each Gaussian's footprint as the projection computes it for the blending (N*3 float32:
+/// pixel centre x, y and radius; radius 0 where it is culled).
+#[pyfunction]
+#[pyo3(signature = (gaussians, view, *, antialiased))]
+fn footprints<'py>(
+    py: Python<'py>,
+    gaussians: PyRef<'py, PyGaussianArrays>,
+    view: PyRef<'py, PyView>,
+    antialiased: bool,
+) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    let (input, camera) = (gaussians.input(), view.camera);
+    let settings = render_settings([0.0; 3], antialiased);
+    let footprints = py
+        .detach(|| with_renderer(|r| r.footprints(&input, &camera, &settings)))
+        .map_err(to_py)?;
+    Ok(PyArray1::from_vec(py, footprints.concat()))
+}
+
 /// The adapter the renderer uses: {name, backend, device_type, driver} and which of the
 /// backward's paths it takes: {subgroups, float_atomics} ("yes" or "no").
 #[pyfunction]
@@ -213,6 +232,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRasterOutput>()?;
     m.add_function(wrap_pyfunction!(render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(footprints, m)?)?;
     m.add_function(wrap_pyfunction!(adapter_info, m)?)?;
     Ok(())
 }

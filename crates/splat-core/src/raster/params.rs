@@ -65,11 +65,23 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// One projected Gaussian, as the projection writes it (the host only sizes them).
+    /// One projected Gaussian, as the projection writes it (the host sizes them and
+    /// reads footprints from them).
     pub(crate) struct Projected {
         xy_opacity_z: [f32; 4],
         conic_radius: [f32; 4],
         rgb: [f32; 4],
+    }
+}
+
+impl Projected {
+    /// Pixel centre x, y and footprint radius (radius 0: culled, project.wgsl's `cull`).
+    pub(crate) fn footprint(&self) -> [f32; 3] {
+        [
+            self.xy_opacity_z[0],
+            self.xy_opacity_z[1],
+            self.conic_radius[3],
+        ]
     }
 }
 

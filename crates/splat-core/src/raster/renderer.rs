@@ -2,7 +2,7 @@
 //! of its calls, in the order of a frame: construction, one frame encoded without waiting
 //! (stages 1–7, each dispatched by its stage module), its backward, the room for
 //! intersections, then the calls that wait for their results (`forward`, `backward`,
-//! `draw`).
+//! `footprints`, `draw`).
 
 use super::backward::{BackwardBuffers, BackwardKernels, Gradients, GAUSSIAN_GRAD_FLOATS};
 use super::blend::{BlendBuffers, BlendKernel};
@@ -611,6 +611,52 @@ impl Renderer {
             opacity_logits: next(),
             sh: next(),
         })
+    }
+
+    /// Each Gaussian's footprint as the projection (stage 1 alone) computes it for the
+    /// blending: pixel centre x, y and radius, the pixels beyond which it changes nothing;
+    /// radius 0 where it is culled (not finite, behind the near plane, degenerate, below
+    /// the least opacity, or no tile of the image within its radius).
+    pub fn footprints(
+        &mut self,
+        scene: &SceneInput<'_>,
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<Vec<[f32; 3]>, RasterError> {
+        validate_camera(camera)?;
+        validate_settings(settings)?;
+        let scene = self.upload(scene)?;
+        let n = scene.len as u64;
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        self.write_params(&RenderParams::new(camera, settings, &scene));
+        let device = self.ctx.device.clone();
+        let b = &mut self.buffers;
+        let projected_bytes = std::mem::size_of::<Projected>() as u64 * n;
+        let projected = b.projected.get(&device, projected_bytes).clone();
+        let tile_counts = b.tile_counts.get(&device, 4 * n).clone();
+        let depth_keys = b.depth_keys[0].get(&device, 4 * n).clone();
+        let depth_vals = b.depth_vals[0].get(&device, 4 * n).clone();
+        let buffers = ProjectBuffers {
+            params: &b.params,
+            gaussians: &scene.buffer,
+            projected: &projected,
+            tile_counts: &tile_counts,
+            depth_keys: &depth_keys,
+            depth_vals: &depth_vals,
+        };
+        let mut encoder = device.create_command_encoder(&Default::default());
+        self.project.encode(
+            &mut encoder.begin_compute_pass(&Default::default()),
+            &device,
+            &buffers,
+            scene.len,
+        );
+        self.submit(encoder)?;
+        let bytes = self.read_back(&projected, 0, projected_bytes)?;
+        let projected: Vec<Projected> = bytemuck::pod_collect_to_vec(&bytes);
+        Ok(projected.iter().map(Projected::footprint).collect())
     }
 
     /// Draws `scene`, kept on the GPU, into `target` (a [`super::target_texture`] of the camera's size)

@@ -223,6 +223,13 @@ fn centred_gaussian_renders_its_closed_form_footprint() {
     // (f s / z)² (+ 0.3 px² of low-pass) about the image centre (20, 15), a pixel corner.
     let variance = (cam.fx * (log_scale as f64).exp() / z).powi(2) + 0.3;
     let opacity = 1.0 / (1.0 + (-opacity_logit as f64).exp());
+    // Its footprint as the projection reports it: 3·sqrt of the larger eigenvalue, which
+    // the kernel keeps sqrt(0.1) above the mean one (here the variance), rounded up.
+    let footprints = renderer
+        .footprints(&SceneInput::from(&g), &cam, &settings)
+        .expect("footprints");
+    let radius = (3.0 * (variance + 0.1f64.sqrt()).sqrt()).ceil();
+    assert_eq!(footprints, vec![[20.0, 15.0, radius as f32]]);
     let mut drawn = 0;
     for y in 0..h {
         for x in 0..w {
@@ -230,6 +237,10 @@ fn centred_gaussian_renders_its_closed_form_footprint() {
             let power = -0.5 * (dx * dx + dy * dy) / variance;
             let alpha = opacity * power.exp();
             let px = &pixels[((y * w + x) as usize) * 5..][..5];
+            assert!(
+                px[3] == 0.0 || (dx * dx + dy * dy).sqrt() <= radius,
+                "pixel ({x}, {y}) is drawn beyond the footprint"
+            );
             if power < -4.5 + 1e-4 || alpha < 1.0 / 255.0 + 1e-6 {
                 // Outside the 3σ ellipse or too faint: nothing drawn (away from the edge).
                 if power < -4.5 - 1e-4 || alpha < 1.0 / 255.0 - 1e-6 {
