@@ -14,25 +14,18 @@ import traceback
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Literal, NoReturn
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from typer.core import TyperGroup
 
-from pano4d.errors import InputError
+from pano4d.errors import InputError, fail
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY
 from pano4d.region_cli import app as regions_app
 
 console = Console(stderr=True)
 Backend = Literal["wgpu", "torch"]
-
-
-def fail(message: str, code: int = 2) -> NoReturn:
-    """Print a clear error (no traceback) and exit with ``code`` (2: bad input)."""
-    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code=code)
 
 
 def describe(error: OSError) -> str:
