@@ -181,8 +181,8 @@ def run_ours(views: Path, steps: int, densify: bool, out: Path, knobs_json: str)
     """The static stage's trainer (resident, wgpu) on the dataset's whole views (weight 1
     everywhere, as the peers see them), from ours_initial.ply; writes out (.ply) and
     out.json (seconds per step after the first, the Gaussian count)."""
-    from pano4d.lift.optimize import Knobs, TrainViews
     from pano4d.lift.resident import ResidentTrainer
+    from pano4d.lift.trainer import Knobs, TrainViews
     from pano4d.renderer import render
 
     data = json.loads((views / "transforms.json").read_text())

@@ -35,8 +35,8 @@ sys.path.insert(0, os.environ.get("PANO4D_PYTHON", str(REPO / "python")))
 from pano4d.camera import Camera  # noqa: E402
 from pano4d.fsutil import write_json_atomic  # noqa: E402
 from pano4d.gaussians import Gaussians  # noqa: E402
-from pano4d.lift.optimize import Knobs, TrainViews  # noqa: E402
 from pano4d.lift.resident import ResidentTrainer  # noqa: E402
+from pano4d.lift.trainer import Knobs, TrainViews  # noqa: E402
 
 TRAINED = 150  # the trained (dynamic) set: a small cluster in the view
 # (context Gaussians, view side in pixels): the context shrinking at draft's 128-px views,

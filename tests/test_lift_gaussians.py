@@ -9,6 +9,13 @@ import torch
 from sphere_problem import sphere_problem
 
 from pano4d.gaussians import SH_C0, Gaussians
+from pano4d.lift.densify import (
+    DENSIFY_GRADIENT,
+    SPLIT_FACTOR,
+    SPLIT_PIXELS,
+    Densified,
+    split_and_prune,
+)
 from pano4d.lift.initial import (
     facing_rotations,
     follow_frame_change,
@@ -16,20 +23,10 @@ from pano4d.lift.initial import (
     init_sphere,
     points_in_mask,
 )
-from pano4d.lift.optimize import (
-    DENSIFY_GRADIENT,
-    SPLIT_FACTOR,
-    SPLIT_PIXELS,
-    Densified,
-    GaussianTrainer,
-    Knobs,
-    TrainViews,
-    moved_camera,
-    pearson_loss,
-    sem_alpha,
-    split_and_prune,
-)
+from pano4d.lift.losses import moved_camera, pearson_loss, sem_alpha
 from pano4d.lift.random_dinov2 import random_feature_model
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, TrainViews
 from pano4d.regions import moving_in_video
 from pano4d.sphere import equirect_directions, view_layout
 

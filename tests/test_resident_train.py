@@ -18,19 +18,13 @@ from sphere_problem import sphere_problem
 from pano4d.camera import Camera
 from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import (
-    OUTSIDE_SUMS,
-    GaussianTrainer,
-    Knobs,
-    TrainViews,
-    learning_rates,
-    screen_gradient,
-    split_and_prune,
-    ssim_loss,
-)
+from pano4d.lift.densify import screen_gradient, split_and_prune
+from pano4d.lift.losses import OUTSIDE_SUMS, ssim_loss
 from pano4d.lift.pipeline import make_trainer
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ResidentTrainer, pack, train_settings, unpack
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, TrainViews, learning_rates
 from pano4d.renderer import MIN_ALPHA_FOR_DEPTH, RenderOutput, render
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -14,8 +14,9 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import GaussianTrainer, Knobs, Trainer, TrainViews
 from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, Trainer, TrainViews
 from pano4d.lift.windows import (
     SSIM_MARGIN,
     ViewWindow,

@@ -102,7 +102,7 @@ class OptimisationKnobs(BaseModel):
     """How Gaussians are optimised: the loss weights, densification and the learning rates.
 
     The one definition of these knobs: a preset's (``PresetKnobs``) and each optimisation's
-    (``lift.optimize.Knobs``, what both trainers read and the resident one hands to the GPU
+    (``lift.trainer.Knobs``, what both trainers read and the resident one hands to the GPU
     as ``pano4d._core.TrainSettings``) extend it. A default is the term switched off, or the
     value every preset uses; the learning rates are knobs because they are the first thing
     to tune when a scene under- or over-fits in its steps (3DGS exposes the same ones).

@@ -26,7 +26,7 @@ from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image, write_contact_sheet, write_video
 from pano4d.lift.diagnosis import write_diagnosis
-from pano4d.lift.optimize import moved_camera
+from pano4d.lift.losses import moved_camera
 from pano4d.lift.pipeline import (
     Alignment,
     DynamicSets,

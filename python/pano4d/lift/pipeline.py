@@ -54,15 +54,9 @@ from pano4d.lift.initial import (
     init_sphere,
     points_in_mask,
 )
-from pano4d.lift.optimize import (
-    FeatureModel,
-    GaussianTrainer,
-    Knobs,
-    RenderFn,
-    Trainer,
-    TrainViews,
-)
 from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
 from pano4d.lift.windows import previous_in_windows, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask

@@ -34,7 +34,8 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import OUTSIDE_SUMS, SSIM_WINDOW, TrainViews, ssim_map
+from pano4d.lift.losses import OUTSIDE_SUMS, SSIM_WINDOW, ssim_map
+from pano4d.lift.trainer import TrainViews
 from pano4d.raster_torch import LOW_PASS, NEAR_PLANE, ewa_covariance
 from pano4d.renderer import RenderOutput
 
