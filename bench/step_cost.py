@@ -71,7 +71,7 @@ def seconds_per_step(context: int, side: int, steps: int) -> tuple[float, float]
     knobs = Knobs(iterations=10**6, lambda_temporal=0.1, lambda_geo=0.05)
     trainer = ResidentTrainer(
         cloud(1, TRAINED, [5.0, 0.5, 0.2], 0.5, 0.05), views, knobs,
-        context=cloud(0, context, [5.0, 0.0, 0.0], 2.0, 0.1),
+        static=cloud(0, context, [5.0, 0.0, 0.0], 2.0, 0.1),
     )  # fmt: skip
     session = trainer._session
     pixels = torch.rand(side * side * 5, generator=gen).numpy()

@@ -162,11 +162,10 @@ def test_a_run_writes_its_diagnosis_beside_metrics_json(scene_dir: Path, tmp_pat
     assert [o["name"] for o in losses["optimisations"]] == names
     # What a step rendered: the static stage whole views alone, a dynamic step its windows
     # (lift/windows.py) with part of the static set.
-    assert (losses["optimisations"][0]["window_share"], losses["optimisations"][0]["context"]) == (
-        1.0, 0,
-    )  # fmt: skip
+    static_log = losses["optimisations"][0]
+    assert (static_log["window_share"], static_log["static_drawn"]) == (1.0, 0)
     for o in losses["optimisations"][1:]:
-        assert 0 < o["window_share"] <= 1 and 0 < o["context"] <= stored[0], o["name"]
+        assert 0 < o["window_share"] <= 1 and 0 < o["static_drawn"] <= stored[0], o["name"]
     for o in losses["optimisations"]:  # a later timestamp runs its share of the steps
         last = 40 if o["name"] in names[:2] else 10
         assert [r["step"] for r in o["losses"]] == list(range(LOG_EVERY, last + 1, LOG_EVERY))

@@ -143,17 +143,17 @@ def test_optimiser_lowers_the_loss_and_resumes_bit_for_bit() -> None:
         assert torch.equal(tensor, expected.tensors()[name]), name
 
 
-def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> None:
+def test_frozen_static_set_gets_no_updates_and_densify_respects_the_budget() -> None:
     g, views = _problem()
-    context, trainable = g[: len(g) // 2], g[len(g) // 2 :]
-    before = context.means.clone()
+    static, trainable = g[: len(g) // 2], g[len(g) // 2 :]
+    before = static.means.clone()
     trainable = trainable.map(lambda t: t.clone())
     trainable.opacity_logits[:3] = -20.0  # transparent: pruned
     knobs = Knobs(iterations=10, densify=True, densify_every=2, max_gaussians=len(trainable) + 4)
-    trainer = GaussianTrainer(trainable, views, knobs, _render, context=context, seed=0)
+    trainer = GaussianTrainer(trainable, views, knobs, _render, static=static, seed=0)
     trainer.run()
-    assert torch.equal(context.means, before)
-    assert trainer.context is not None and torch.equal(trainer.context.means, before)
+    assert torch.equal(static.means, before)
+    assert trainer.static is not None and torch.equal(trainer.static.means, before)
     out = trainer.result()
     assert len(out) <= knobs.max_gaussians
     assert bool((torch.sigmoid(out.opacity_logits) > 0.005).all())

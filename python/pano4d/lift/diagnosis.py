@@ -83,9 +83,9 @@ class TrainLog:
     densify: list[DensifyStats] = field(default_factory=list)
     stop: Stop | None = None  # where and why it stopped, once it has
     # What a step rendered (a dynamic step renders windows, lift.windows): the windows'
-    # share of the views' pixels and the context (static) Gaussians rendered with the set.
+    # share of the views' pixels and how many of the static Gaussians it drew with the set.
     window_share: float = 1.0
-    context: int = 0
+    static_drawn: int = 0
 
     def record_loss(self, step: int, view: int, terms: Mapping[str, SupportsFloat]) -> None:
         """The loss terms of ``step``, whose one view was ``view``."""
@@ -103,7 +103,7 @@ class TrainLog:
             "densify": [asdict(d) for d in self.densify],
             "stop": self.stop.to_dict() if self.stop is not None else None,
             "window_share": self.window_share,
-            "context": self.context,
+            "static_drawn": self.static_drawn,
         }
 
     @classmethod
@@ -113,7 +113,7 @@ class TrainLog:
             d["name"], int(d["start"]), [dict(r) for r in d["losses"]],
             [DensifyStats(**s) for s in d["densify"]],
             Stop(**stop) if stop is not None else None,
-            float(d.get("window_share", 1.0)), int(d.get("context", 0)),
+            float(d.get("window_share", 1.0)), int(d.get("static_drawn", 0)),
         )  # fmt: skip
 
     def terms(self) -> list[str]:
@@ -143,7 +143,7 @@ def write_diagnosis(out: Path, logs: list[tuple[TrainLog, int]]) -> None:
         "names": TERM_NAMES,
         "optimisations": [{"name": log.name, "terms": log.terms(), "losses": log.losses,
                            "stop": log.stop.to_dict() if log.stop is not None else None,
-                           "window_share": log.window_share, "context": log.context}
+                           "window_share": log.window_share, "static_drawn": log.static_drawn}
                           for log, _ in logs],
     })  # fmt: skip
     static = [log for log, _ in logs if log.name == "static"]

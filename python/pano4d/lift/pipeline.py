@@ -305,20 +305,21 @@ def make_trainer(
     views: TrainViews,
     knobs: Knobs,
     render: RenderFn,
-    context: Gaussians | None = None,
+    static: Gaussians | None = None,
     features: FeatureModel | None = None,
     seed: int = 0,
 ) -> Trainer:
-    """The optimiser of one set of Gaussians: the one place the stages build one. ``kind`` is
-    a key of TRAINERS; both trainers see the same views in the same order (same seed).
-    ``render`` is the torch trainer's rasteriser; the resident one renders on the device."""
+    """The optimiser of one set of Gaussians, over the frozen ``static`` set if given: the
+    one place the stages build one. ``kind`` is a key of TRAINERS; both trainers see the
+    same views in the same order (same seed). ``render`` is the torch trainer's rasteriser;
+    the resident one renders on the device."""
     if kind == "torch":
         return GaussianTrainer(
-            gaussians, views, knobs, render, context=context, features=features, seed=seed
+            gaussians, views, knobs, render, static=static, features=features, seed=seed
         )
     if kind == "resident":
         return ResidentTrainer(
-            gaussians, views, knobs, context=context, features=features, seed=seed
+            gaussians, views, knobs, static=static, features=features, seed=seed
         )
     raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {kind!r}")
 
@@ -554,18 +555,19 @@ def fit_dynamic(
         )  # fmt: skip
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
         previous = done[-1] if t > 0 else None
-        context, reach = static, None
+        # The static Gaussians a step draws: all of them, or those that can draw into a window.
+        static_drawn, reach = static, None
         if windows:
             # The window holds t − 1's set too, so that outside it t − 1's render (L_temporal's
             # target) is the static render.
             drawn = dynamic if previous is None else Gaussians.cat([dynamic, previous])
             reach = [reach_window(cameras[i], moving[i], drawn) for i in seeing]
             window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
-            context = static[touching(static, window_cameras)]
+            static_drawn = static[touching(static, window_cameras)]
         if previous is not None and reach is not None:  # L_temporal's target: t − 1's render
             with torch.no_grad():
                 views.previous = previous_in_windows(
-                    inputs.render, reach, cams, static_renders, context, previous
+                    inputs.render, reach, cams, static_renders, static_drawn, previous
                 )
         elif previous is not None:
             with torch.no_grad():
@@ -586,7 +588,7 @@ def fit_dynamic(
             views,
             stage,
             inputs.render,
-            context=context,
+            static=static_drawn,
             features=features,
             seed=inputs.cfg.seed + 1 + t,
         )
@@ -596,7 +598,7 @@ def fit_dynamic(
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(dynamic)))
         log = logs[t]
-        log.context = len(context)
+        log.static_drawn = len(static_drawn)
         log.window_share = sum(c.width * c.height for c in views.cameras) / (len(cams) * h * w)
         rule = (
             StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])

@@ -84,7 +84,7 @@ class ResidentTrainer(Trainer):
     def _start(self, gaussians: Gaussians) -> None:
         g = gaussians.detach()
         self._sh_coeffs = g.sh.shape[1]
-        ctx = Gaussians.empty(g.sh_degree) if self.context is None else self.context
+        ctx = Gaussians.empty(g.sh_degree) if self.static is None else self.static
         if ctx.sh_degree > g.sh_degree:
             raise ValueError(
                 f"the context's SH degree ({ctx.sh_degree}) is above the trained set's "

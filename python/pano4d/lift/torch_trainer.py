@@ -3,8 +3,8 @@ with any differentiable rasteriser (``render_fn``). It is the reference the resi
 (``lift.resident``, the default) is checked against step for step, and the only trainer
 with the torch rasteriser (``pano4d train --trainer torch``).
 
-One step draws a view (``Trainer.next_view``), renders the trained Gaussians with the frozen
-context if there is one, sums the terms of ``lift.losses`` into L, back-propagates,
+One step draws a view (``Trainer.next_view``), renders the trained Gaussians over the frozen
+static set if there is one, sums the terms of ``lift.losses`` into L, back-propagates,
 accumulates each Gaussian's screen-space position gradient for the densification statistic
 (``lift.densify``) and takes an Adam step (β, ε and the learning rates of
 ``lift.trainer``).
@@ -33,7 +33,7 @@ from pano4d.lift.trainer import (
 
 
 class GaussianTrainer(Trainer):
-    """Optimises one set of Gaussians (optionally against a frozen context) in torch,
+    """Optimises one set of Gaussians (optionally over the frozen static set) in torch,
     rendering with ``render_fn`` (any differentiable rasteriser)."""
 
     def __init__(
@@ -42,13 +42,13 @@ class GaussianTrainer(Trainer):
         views: TrainViews,
         knobs: Knobs,
         render_fn: RenderFn,
-        context: Gaussians | None = None,
+        static: Gaussians | None = None,
         features: FeatureModel | None = None,
         seed: int = 0,
         background: torch.Tensor | None = None,
     ) -> None:
         self.render_fn = render_fn
-        super().__init__(gaussians, views, knobs, context, features, seed, background)
+        super().__init__(gaussians, views, knobs, static, features, seed, background)
 
     def _start(self, gaussians: Gaussians) -> None:
         self._set_parameters(gaussians)
@@ -97,7 +97,7 @@ class GaussianTrainer(Trainer):
 
     def _scene(self) -> Gaussians:
         g = self.gaussians()
-        return g if self.context is None else Gaussians.cat([self.context, g])
+        return g if self.static is None else Gaussians.cat([self.static, g])
 
     # --- one step --------------------------------------------------------------------------
     def loss_at(self, index: int) -> torch.Tensor:

@@ -1,5 +1,5 @@
 """What every trainer of the lifting phase is: the ``Trainer`` base, what it is given (the
-views it trains on, ``TrainViews``; its knobs, ``Knobs``; a frozen context) and
+views it trains on, ``TrainViews``; its knobs, ``Knobs``; the frozen static set) and
 Adam's settings both trainers share (``learning_rates``, ``ADAM_BETAS``, ``ADAM_EPS``).
 
 Two trainers implement it: the torch reference (``lift.torch_trainer.GaussianTrainer``) and
@@ -7,8 +7,8 @@ the resident one on the GPU (``lift.resident.ResidentTrainer``); ``pipeline.make
 builds one per optimisation (the static set once, the dynamic set per timestamp). Their
 losses are ``lift.losses``', their densification ``lift.densify``'s.
 
-Each step renders one view drawn from a seeded generator. Gaussians can be trained against a
-frozen context (the static set while a timestamp's dynamic set trains): the context is
+Each step renders one view drawn from a seeded generator. Gaussians can be trained against
+the frozen static set (``static``: while a timestamp's dynamic set trains), which is
 rendered with them but gets no gradient. Positions are optimised as offsets in units of
 each Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and one at
 1000 m. For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last loss terms in
@@ -120,7 +120,7 @@ class Trainer(ABC):
         gaussians: Gaussians,
         views: TrainViews,
         knobs: Knobs,
-        context: Gaussians | None = None,
+        static: Gaussians | None = None,
         features: FeatureModel | None = None,
         seed: int = 0,
         background: torch.Tensor | None = None,
@@ -130,7 +130,8 @@ class Trainer(ABC):
         if len(views.cameras) == 0:
             raise ValueError("no views to train on")
         self.views, self.knobs, self.features = views, knobs, features
-        self.context = context.detach() if context is not None else None
+        # The frozen static set, rendered with the trained Gaussians, never trained.
+        self.static = static.detach() if static is not None else None
         self.background = background
         self.device = gaussians.device
         self.step = 0
