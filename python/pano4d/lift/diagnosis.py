@@ -1,7 +1,7 @@
 """What each optimisation of a lifting run did, for the user (written beside metrics.json).
 
 Every optimisation (the static set; the dynamic set of each timestamp) keeps a ``TrainLog``:
-its loss and each active loss term every ``LOG_EVERY`` steps, and one ``DensifyStats`` per
+its loss and each active loss term every ``LOSS_EVERY`` steps, and one ``DensifyStats`` per
 densify-and-prune. The log is part of the trainer's checkpoint, so a resumed run's log is the
 uninterrupted run's. ``write_diagnosis`` writes
 
@@ -33,7 +33,10 @@ from pano4d.fsutil import write_json_atomic, write_text_atomic
 from pano4d.images import write_image
 from pano4d.lift.convergence import Stop
 
-LOG_EVERY = 10  # steps between loss records (the resident trainer reads its loss this often)
+# Steps between loss records: ``pipeline.run_trainer`` records the loss terms this often,
+# and the resident trainer reads its loss back from the device this often (and at the last
+# step) so that each record holds that step's loss.
+LOSS_EVERY = 10
 # The terms a loss record may hold, in plot order, and their colours.
 TERMS = {
     "total": (0.95, 0.95, 0.95),
@@ -139,7 +142,7 @@ def write_diagnosis(out: Path, logs: list[tuple[TrainLog, int]]) -> None:
     lines = [json.dumps(line) for log, stored in logs for line in densify_lines(log, stored)]
     write_text_atomic(out / "densify.jsonl", "\n".join(lines) + "\n")
     write_json_atomic(out / "losses.json", {
-        "every": LOG_EVERY,
+        "every": LOSS_EVERY,
         "names": TERM_NAMES,
         "optimisations": [{"name": log.name, "terms": log.terms(), "losses": log.losses,
                            "stop": log.stop.to_dict() if log.stop is not None else None,

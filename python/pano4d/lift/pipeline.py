@@ -46,7 +46,7 @@ from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.convergence import StopRule
 from pano4d.lift.depth import make_depth_backend
-from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
+from pano4d.lift.diagnosis import LOSS_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import (
     follow_frame_change,
@@ -392,7 +392,7 @@ def run_trainer(
     extra: Callable[[], dict[str, Any]],
     rule: StopRule,
 ) -> Gaussians:
-    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOG_EVERY steps
+    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOSS_EVERY steps
     and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
     ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too).
     ``rule`` decides, at each loss record, whether it has converged; where and why it
@@ -402,7 +402,7 @@ def run_trainer(
     def step(tr: Trainer) -> bool:
         task.update(tr.step, loss=tr.last_loss)
         stop = None
-        if tr.step % LOG_EVERY == 0 or tr.step == tr.knobs.iterations:
+        if tr.step % LOSS_EVERY == 0 or tr.step == tr.knobs.iterations:
             log.record_loss(tr.step, tr.last_view, tr.last_terms)
             stop = rule.check(log.losses, tr.step)
         if tr.last_densify is not None and tr.last_densify.step == tr.step:

@@ -32,10 +32,9 @@ import torch.nn.functional as F
 from pano4d.extension import camera_arrays, core, flat
 from pano4d.gaussians import Gaussians
 from pano4d.lift.densify import densify_due, split_and_prune
+from pano4d.lift.diagnosis import LOSS_EVERY
 from pano4d.lift.losses import moved_camera, sem_alpha
 from pano4d.lift.trainer import ADAM_BETAS, ADAM_EPS, Knobs, Trainer, learning_rates
-
-LOSS_EVERY = 10  # steps between loss read-backs (the progress bar's figure)
 
 
 def train_settings(knobs: Knobs, background: tuple[float, ...] = (0.0, 0.0, 0.0)) -> Any:
