@@ -533,7 +533,7 @@ def test_pano4d_train_runs_the_resident_loop_by_default_and_resumes_only_its_own
     from pano4d import ply4d, synth
     from pano4d.config import load_config
     from pano4d.lift.checkpoints import TrainError
-    from pano4d.lift.pipeline import trainer_for
+    from pano4d.lift.trainers import trainer_for
     from pano4d.train import run_train
 
     root = tmp_path / "scene"

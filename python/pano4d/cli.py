@@ -414,7 +414,7 @@ def train(
 
     Checkpoints after every stage; run the same command again to resume after a kill."""
     from pano4d.config import load_config
-    from pano4d.lift.pipeline import trainer_for
+    from pano4d.lift.trainers import trainer_for
     from pano4d.train import run_train
 
     cfg = load_config(scene)

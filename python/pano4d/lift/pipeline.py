@@ -54,9 +54,8 @@ from pano4d.lift.initial import (
     init_sphere,
     points_in_mask,
 )
-from pano4d.lift.resident import ResidentTrainer
-from pano4d.lift.torch_trainer import GaussianTrainer
 from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
+from pano4d.lift.trainers import trainer_kind
 from pano4d.lift.windows import previous_in_windows, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
@@ -68,24 +67,6 @@ from pano4d.sphere import view_layout
 # align (step: the iteration within the frame), static and dynamic stages (step: steps
 # done) and a file of the export (step: files written). Tests interrupt a run with it.
 StepHook = Callable[[str, int], None]
-# The optimisers: "resident" keeps the Gaussians, Adam and the losses on the GPU (wgpu);
-# "torch" is GaussianTrainer, the reference (losses and Adam in torch, any rasteriser).
-TRAINERS: dict[str, type[Trainer]] = {"resident": ResidentTrainer, "torch": GaussianTrainer}
-
-
-def trainer_for(render_backend: str, trainer: str | None) -> str:
-    """The trainer to use: ``trainer``, or by default the resident one on wgpu and the torch
-    one with the torch rasteriser (the resident loop renders with wgpu only)."""
-    if trainer is None:
-        return "resident" if render_backend == "wgpu" else "torch"
-    if trainer not in TRAINERS:
-        raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {trainer!r}")
-    if trainer == "resident" and render_backend != "wgpu":
-        raise ValueError(
-            f"the resident trainer renders with wgpu, not the {render_backend!r} rasteriser: "
-            "use the torch trainer with that backend"
-        )
-    return trainer
 
 
 # --- 1. inputs -------------------------------------------------------------------------------
@@ -100,7 +81,7 @@ class LiftInputs:
     frames: torch.Tensor  # (L, H, W, 3) at the working resolution
     moving: torch.Tensor  # (H, W) bool, the grown moving region at the working resolution
     render_backend: str  # "wgpu" | "torch"
-    trainer: str  # a key of TRAINERS
+    trainer: str  # a key of trainers.TRAINERS
 
     def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
         from pano4d.renderer import render
@@ -310,18 +291,10 @@ def make_trainer(
     seed: int = 0,
 ) -> Trainer:
     """The optimiser of one set of Gaussians, over the frozen ``static`` set if given: the
-    one place the stages build one. ``kind`` is a key of TRAINERS; both trainers see the
-    same views in the same order (same seed). ``render`` is the torch trainer's rasteriser;
-    the resident one renders on the device."""
-    if kind == "torch":
-        return GaussianTrainer(
-            gaussians, views, knobs, render, static=static, features=features, seed=seed
-        )
-    if kind == "resident":
-        return ResidentTrainer(
-            gaussians, views, knobs, static=static, features=features, seed=seed
-        )
-    raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {kind!r}")
+    one place the stages build one. ``kind`` is a key of trainers.TRAINERS; both trainers
+    see the same views in the same order (same seed). ``render`` is the torch trainer's
+    rasteriser; the resident one renders on the device."""
+    return trainer_kind(kind).build(gaussians, views, knobs, render, static, features, seed)
 
 
 def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> None:
@@ -669,7 +642,7 @@ def lift(
     animate_seconds: float,
 ) -> Lifted:
     """Every stage in order on the animation in ``frames_dir``; ``trainer`` is a key of
-    TRAINERS."""
+    trainers.TRAINERS."""
     inputs = prepare(cfg, frames_dir, render_backend, trainer)
     view_depth = estimate_depth(inputs, checkpoints, bars, on_step)
     alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)

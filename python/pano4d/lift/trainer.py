@@ -3,9 +3,10 @@ views it trains on, ``TrainViews``; its knobs, ``Knobs``; the frozen static set)
 Adam's settings both trainers share (``learning_rates``, ``ADAM_BETAS``, ``ADAM_EPS``).
 
 Two trainers implement it: the torch reference (``lift.torch_trainer.GaussianTrainer``) and
-the resident one on the GPU (``lift.resident.ResidentTrainer``); ``pipeline.make_trainer``
-builds one per optimisation (the static set once, the dynamic set per timestamp). Their
-losses are ``lift.losses``', their densification ``lift.densify``'s.
+the resident one on the GPU (``lift.resident.ResidentTrainer``); ``lift.trainers`` says
+which exist, ``pipeline.make_trainer`` builds one per optimisation (the static set once, the
+dynamic set per timestamp). Their losses are ``lift.losses``', their densification
+``lift.densify``'s.
 
 Each step renders one view drawn from a seeded generator. Gaussians can be trained against
 the frozen static set (``static``: while a timestamp's dynamic set trains), which is
