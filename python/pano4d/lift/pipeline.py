@@ -466,16 +466,58 @@ def fit_static(
 class DynamicSets:
     gaussians: list[Gaussians]  # one set per timestamp
     seconds: float
-    # Seconds per step when a step renders static + dynamic, as whole-timestamp training
-    # would; None when nothing was optimised.
+    # Seconds per step when a step renders the whole static set and the dynamic set in
+    # whole views, as training each timestamp whole would (``whole_scene_step``); None when
+    # nothing was optimised.
     full_scene_step: float | None
     logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
+
+
+WHOLE_SCENE_STEPS = 10  # steps ``whole_scene_step`` times, after one to warm up
 
 
 def dynamic_iterations(full: int, t: int, later_share: float) -> int:
     """At most this many steps for timestamp t: the full count first, ``later_share`` of it
     for the warm-started later ones; the stop rule (``convergence``) may end either sooner."""
     return full if t == 0 else max(1, round(full * later_share))
+
+
+def previous_renders(
+    inputs: LiftInputs, static: Gaussians, previous: Gaussians, cameras: list[Camera]
+) -> torch.Tensor:
+    """L_temporal's target in whole views: t − 1's scene (``static`` and ``previous``)
+    rendered by ``cameras``, (V, h, w, 3)."""
+    with torch.no_grad():
+        scene = Gaussians.cat([static, previous])
+        return torch.stack([inputs.render(scene, c).rgb for c in cameras])
+
+
+def whole_scene_step(
+    inputs: LiftInputs,
+    static: Gaussians,
+    dynamic: Gaussians,
+    views: TrainViews,
+    knobs: Knobs,
+    features: FeatureModel | None,
+) -> float:
+    """Seconds per step of training ``dynamic`` over the whole ``static`` set in whole
+    ``views`` (no windows), as training a timestamp whole would: metrics.json's estimate of
+    what the dynamic stage saves (``export.run_metrics``). A timing only: the trainer is
+    thrown away and draws from its own generator, so nothing it does reaches a result."""
+    # As many steps as are timed (and the warm-up), so that L_sem's schedule runs on about
+    # the share of them it runs on in a stage; no densification.
+    knobs = knobs.model_copy(update={"iterations": 1 + WHOLE_SCENE_STEPS, "densify": False})
+    trainer = make_trainer(
+        inputs.trainer, dynamic, views, knobs, inputs.render, static=static, features=features,
+        seed=inputs.cfg.seed,
+    )  # fmt: skip
+    trainer.train_step()  # the first step builds the device's pipelines and sizes its buffers
+    trainer.result()  # reading the Gaussians back waits for the device's steps to finish
+    start = time.perf_counter()
+    for _ in range(WHOLE_SCENE_STEPS):
+        trainer.train_step()
+    trainer.result()
+    return (time.perf_counter() - start) / WHOLE_SCENE_STEPS
 
 
 def fit_dynamic(
@@ -543,9 +585,7 @@ def fit_dynamic(
                     inputs.render, reach, cams, static_renders, static_drawn, previous
                 )
         elif previous is not None:
-            with torch.no_grad():
-                scene = Gaussians.cat([static, previous])
-                views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
+            views.previous = previous_renders(inputs, static, previous, cams)
         if reach is not None:
             views = windowed(views, reach, static_renders)
         iterations = dynamic_iterations(full, t, inputs.knobs.later_iteration_share)
@@ -584,8 +624,15 @@ def fit_dynamic(
             )
         )
         checkpoints.save("dynamic", saved())
-    steps = sum(log.stop.step for log in logs if log.stop is not None)
-    return DynamicSets(done, seconds(), seconds() / max(1, steps), logs)
+    spent = seconds()
+    # The last timestamp's step, trained whole.
+    t = total - 1
+    views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
+    if t > 0:
+        views.previous = previous_renders(inputs, static, done[t - 1], cams)
+    stage = trainer_knobs(inputs.knobs, full, budget, median_depth, cams, inputs.frames.shape[2])
+    step = whole_scene_step(inputs, static, done[t], views, stage, features)
+    return DynamicSets(done, spent, step, logs)
 
 
 # --- where a rerun picks up ------------------------------------------------------------------
