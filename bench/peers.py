@@ -181,9 +181,8 @@ def run_ours(views: Path, steps: int, densify: bool, out: Path, knobs_json: str)
     """The static stage's trainer (resident, wgpu) on the dataset's whole views (weight 1
     everywhere, as the peers see them), from ours_initial.ply; writes out (.ply) and
     out.json (seconds per step after the first, the Gaussian count)."""
-    from pano4d.lift.optimize import Knobs, TrainViews
     from pano4d.lift.resident import ResidentTrainer
-    from pano4d.renderer import render
+    from pano4d.lift.trainer import Knobs, TrainViews
 
     data = json.loads((views / "transforms.json").read_text())
     preset = json.loads(knobs_json)
@@ -201,11 +200,7 @@ def run_ours(views: Path, steps: int, densify: bool, out: Path, knobs_json: str)
         sem_scale=data["pano4d"]["median_depth"],
     )  # fmt: skip
     initial = ply4d.read_ply(views / "ours_initial.ply")
-
-    def wgpu(g: Gaussians, camera: Camera, background: Any = None) -> Any:
-        return render(g, camera, background=background, backend="wgpu")
-
-    trainer = ResidentTrainer(initial, train_views, knobs, wgpu)
+    trainer = ResidentTrainer(initial, train_views, knobs)  # it renders on the device
     trainer.train_step()  # the first step builds pipelines and sizes buffers
     trainer._session.loss()
     start = time.perf_counter()

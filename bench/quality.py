@@ -43,7 +43,7 @@ from pano4d.config import load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.images import read_depth, read_image, read_mask
 from pano4d.lift.align import FrameAlignment, sphere_for_views
-from pano4d.lift.pipeline import trainer_for
+from pano4d.lift.trainers import trainer_for
 from pano4d.resample import equirect_to_perspective, sphere_to_equirect
 from pano4d.sphere import view_layout
 from pano4d.synth.scene import SCENE_KINDS

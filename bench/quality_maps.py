@@ -28,7 +28,7 @@ import torch
 from pano4d import ply4d
 from pano4d.camera import Camera
 from pano4d.images import read_image, write_contact_sheet, write_image
-from pano4d.lift.optimize import moved_camera
+from pano4d.lift.losses import moved_camera
 from pano4d.metrics import psnr
 from pano4d.resample import equirect_to_perspective, perspective_to_equirect
 from pano4d.sphere import view_layout

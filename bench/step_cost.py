@@ -35,8 +35,8 @@ sys.path.insert(0, os.environ.get("PANO4D_PYTHON", str(REPO / "python")))
 from pano4d.camera import Camera  # noqa: E402
 from pano4d.fsutil import write_json_atomic  # noqa: E402
 from pano4d.gaussians import Gaussians  # noqa: E402
-from pano4d.lift.optimize import Knobs, TrainViews  # noqa: E402
 from pano4d.lift.resident import ResidentTrainer  # noqa: E402
+from pano4d.lift.trainer import Knobs, TrainViews  # noqa: E402
 
 TRAINED = 150  # the trained (dynamic) set: a small cluster in the view
 # (context Gaussians, view side in pixels): the context shrinking at draft's 128-px views,
@@ -71,7 +71,7 @@ def seconds_per_step(context: int, side: int, steps: int) -> tuple[float, float]
     knobs = Knobs(iterations=10**6, lambda_temporal=0.1, lambda_geo=0.05)
     trainer = ResidentTrainer(
         cloud(1, TRAINED, [5.0, 0.5, 0.2], 0.5, 0.05), views, knobs,
-        context=cloud(0, context, [5.0, 0.0, 0.0], 2.0, 0.1),
+        static=cloud(0, context, [5.0, 0.0, 0.0], 2.0, 0.1),
     )  # fmt: skip
     session = trainer._session
     pixels = torch.rand(side * side * 5, generator=gen).numpy()

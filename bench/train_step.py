@@ -60,9 +60,10 @@ from pano4d.camera import Camera
 from pano4d.config import PRESETS
 from pano4d.gaussians import Gaussians
 from pano4d.lift.initial import init_gaussians, init_sphere
-from pano4d.lift.optimize import GaussianTrainer, Knobs, TrainViews
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, TrainViews
 from pano4d.renderer import RenderOutput, adapter_info, render
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout

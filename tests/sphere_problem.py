@@ -7,7 +7,7 @@ import torch
 
 from pano4d.gaussians import Gaussians
 from pano4d.lift.initial import init_gaussians, init_sphere
-from pano4d.lift.optimize import TrainViews
+from pano4d.lift.trainer import TrainViews
 from pano4d.resample import equirect_to_perspective
 from pano4d.sphere import view_layout
 

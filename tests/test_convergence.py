@@ -9,17 +9,17 @@ import random
 import pytest
 
 from pano4d.lift.convergence import Stop, StopRule
-from pano4d.lift.diagnosis import LOG_EVERY
+from pano4d.lift.diagnosis import LOSS_EVERY
 
 
 def run(rule: StopRule, curve, views: int = 12, spread: float = 0.6, seed: int = 0) -> Stop:
-    """Feed ``rule`` one record every LOG_EVERY steps of ``curve(step)`` times the difficulty
+    """Feed ``rule`` one record every LOSS_EVERY steps of ``curve(step)`` times the difficulty
     of a random view (each view's factor fixed, between 1 − spread/2 and 1 + spread/2), as a
     trainer's records are; where it stops."""
     rng = random.Random(seed)
     difficulty = [1 - spread / 2 + spread * rng.random() for _ in range(views)]
     losses: list[dict[str, float]] = []
-    for step in range(LOG_EVERY, rule.ceiling + LOG_EVERY, LOG_EVERY):
+    for step in range(LOSS_EVERY, rule.ceiling + LOSS_EVERY, LOSS_EVERY):
         view = rng.randrange(views)
         losses.append({"step": step, "view": view, "total": curve(step) * difficulty[view]})
         stop = rule.check(losses, step)
@@ -68,7 +68,7 @@ def test_the_fixed_rule_runs_its_count() -> None:
 def test_floor_and_window_are_within_the_count(count: int) -> None:
     rule = StopRule.for_count(count, count)
     assert 0 < rule.floor <= count
-    assert rule.window >= LOG_EVERY
+    assert rule.window >= LOSS_EVERY
 
 
 def reference_records(level: float, views: int = 12, spread: float = 0.6, seed: int = 0):
@@ -85,7 +85,7 @@ def test_a_frame_that_barely_changed_costs_a_window() -> None:
     for seed in range(10):
         rule = StopRule.for_count(1000, 500, [earlier[seed]])
         stop = run(rule, lambda _s: 1.005, seed=seed)
-        assert stop.reason == "level" and stop.step <= rule.floor + LOG_EVERY, (seed, stop)
+        assert stop.reason == "level" and stop.step <= rule.floor + LOSS_EVERY, (seed, stop)
 
 
 def test_a_frame_that_changed_runs_until_it_is_back_at_its_level() -> None:

@@ -18,7 +18,7 @@ from pano4d.config import SceneConfig, load_config
 from pano4d.images import read_image
 from pano4d.lift.convergence import Stop
 from pano4d.lift.diagnosis import (
-    LOG_EVERY,
+    LOSS_EVERY,
     MARGIN_B,
     MARGIN_L,
     MARGIN_R,
@@ -158,18 +158,17 @@ def test_a_run_writes_its_diagnosis_beside_metrics_json(scene_dir: Path, tmp_pat
         assert own[-1]["gaussians"] == gaussians == count, name
     starts = {line["optimisation"]: line["gaussians"] for line in lines if line["event"] == "start"}
     assert starts["dynamic t=1"] == stored[1] and starts["dynamic t=2"] == stored[2]
-    # Loss terms every LOG_EVERY steps and at the last, L_temporal only once there is a t − 1.
+    # Loss terms every LOSS_EVERY steps and at the last, L_temporal only once there is a t − 1.
     assert [o["name"] for o in losses["optimisations"]] == names
     # What a step rendered: the static stage whole views alone, a dynamic step its windows
     # (lift/windows.py) with part of the static set.
-    assert (losses["optimisations"][0]["window_share"], losses["optimisations"][0]["context"]) == (
-        1.0, 0,
-    )  # fmt: skip
+    static_log = losses["optimisations"][0]
+    assert (static_log["window_share"], static_log["static_drawn"]) == (1.0, 0)
     for o in losses["optimisations"][1:]:
-        assert 0 < o["window_share"] <= 1 and 0 < o["context"] <= stored[0], o["name"]
+        assert 0 < o["window_share"] <= 1 and 0 < o["static_drawn"] <= stored[0], o["name"]
     for o in losses["optimisations"]:  # a later timestamp runs its share of the steps
         last = 40 if o["name"] in names[:2] else 10
-        assert [r["step"] for r in o["losses"]] == list(range(LOG_EVERY, last + 1, LOG_EVERY))
+        assert [r["step"] for r in o["losses"]] == list(range(LOSS_EVERY, last + 1, LOSS_EVERY))
         assert o["stop"]["step"] == last, o["name"]
         temporal = ["temporal"] if o["name"] in names[2:] else []
         assert o["terms"] == ["total", "l1", "d_ssim", *temporal, "geo"]

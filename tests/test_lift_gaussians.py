@@ -9,6 +9,13 @@ import torch
 from sphere_problem import sphere_problem
 
 from pano4d.gaussians import SH_C0, Gaussians
+from pano4d.lift.densify import (
+    DENSIFY_GRADIENT,
+    SPLIT_FACTOR,
+    SPLIT_PIXELS,
+    Densified,
+    split_and_prune,
+)
 from pano4d.lift.initial import (
     facing_rotations,
     follow_frame_change,
@@ -16,20 +23,10 @@ from pano4d.lift.initial import (
     init_sphere,
     points_in_mask,
 )
-from pano4d.lift.optimize import (
-    DENSIFY_GRADIENT,
-    SPLIT_FACTOR,
-    SPLIT_PIXELS,
-    Densified,
-    GaussianTrainer,
-    Knobs,
-    TrainViews,
-    moved_camera,
-    pearson_loss,
-    sem_alpha,
-    split_and_prune,
-)
+from pano4d.lift.losses import moved_camera, pearson_loss, sem_alpha
 from pano4d.lift.random_dinov2 import random_feature_model
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, TrainViews
 from pano4d.regions import moving_in_video
 from pano4d.sphere import equirect_directions, view_layout
 
@@ -146,17 +143,17 @@ def test_optimiser_lowers_the_loss_and_resumes_bit_for_bit() -> None:
         assert torch.equal(tensor, expected.tensors()[name]), name
 
 
-def test_frozen_context_gets_no_updates_and_densify_respects_the_budget() -> None:
+def test_frozen_static_set_gets_no_updates_and_densify_respects_the_budget() -> None:
     g, views = _problem()
-    context, trainable = g[: len(g) // 2], g[len(g) // 2 :]
-    before = context.means.clone()
+    static, trainable = g[: len(g) // 2], g[len(g) // 2 :]
+    before = static.means.clone()
     trainable = trainable.map(lambda t: t.clone())
     trainable.opacity_logits[:3] = -20.0  # transparent: pruned
     knobs = Knobs(iterations=10, densify=True, densify_every=2, max_gaussians=len(trainable) + 4)
-    trainer = GaussianTrainer(trainable, views, knobs, _render, context=context, seed=0)
+    trainer = GaussianTrainer(trainable, views, knobs, _render, static=static, seed=0)
     trainer.run()
-    assert torch.equal(context.means, before)
-    assert trainer.context is not None and torch.equal(trainer.context.means, before)
+    assert torch.equal(static.means, before)
+    assert trainer.static is not None and torch.equal(trainer.static.means, before)
     out = trainer.result()
     assert len(out) <= knobs.max_gaussians
     assert bool((torch.sigmoid(out.opacity_logits) > 0.005).all())

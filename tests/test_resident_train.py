@@ -18,19 +18,13 @@ from sphere_problem import sphere_problem
 from pano4d.camera import Camera
 from pano4d.extension import core, flat, gaussian_arrays, gaussians_from, view
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import (
-    OUTSIDE_SUMS,
-    GaussianTrainer,
-    Knobs,
-    TrainViews,
-    learning_rates,
-    screen_gradient,
-    split_and_prune,
-    ssim_loss,
-)
+from pano4d.lift.densify import screen_gradient, split_and_prune
+from pano4d.lift.losses import OUTSIDE_SUMS, ssim_loss
 from pano4d.lift.pipeline import make_trainer
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.resident import ResidentTrainer, train_settings
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, TrainViews, learning_rates
 from pano4d.renderer import MIN_ALPHA_FOR_DEPTH, RenderOutput, render
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -219,22 +213,22 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
     on gradients spanning three decades and one exact zero. The first step is bit-exact;
     after it, moments and parameters agree to 4 float32 ulps of each group's scale (torch's
     own vector lanes fuse the multiply-adds and its scalar tail does not, so exact equality
-    is not defined). The context is not touched."""
-    context, trained = _gaussians(5, 1, seed=0), _gaussians(7, 1, seed=1)
+    is not defined). The static set is not touched."""
+    static, trained = _gaussians(5, 1, seed=0), _gaussians(7, 1, seed=1)
     cam = Camera.from_fov(60.0, 16, 16, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
     ones = torch.ones(1, 16, 16)
     views = TrainViews([cam], torch.rand(1, 16, 16, 3), ones, ones)
     knobs = Knobs(iterations=5)
-    reference = GaussianTrainer(trained, views, knobs, _render, context=context)
-    resident = ResidentTrainer(trained, views, knobs, context=context)
-    n_all = len(context) + len(trained)
+    reference = GaussianTrainer(trained, views, knobs, _render, static=static)
+    resident = ResidentTrainer(trained, views, knobs, static=static)
+    n_all = len(static) + len(trained)
     norms = torch.zeros(len(trained))
     for step in range(5):
         scale = 10.0 ** -(step % 3)
         grads = _gaussians(n_all, 1, seed=10 + step).map(lambda t, s=scale: t * s)
-        grads.opacity_logits[len(context)] = 0.0  # a zero gradient: moments decay, no NaN
+        grads.opacity_logits[len(static)] = 0.0  # a zero gradient: moments decay, no NaN
         resident._session.apply_gradients(gaussian_arrays(grads))
-        g = grads[len(context):]
+        g = grads[len(static):]
         p = reference.params
         p["offsets"].grad = g.means * reference.unit[:, None]  # autograd's d/d offsets
         norms += screen_gradient(p["offsets"].grad, reference.result().means)
@@ -269,8 +263,8 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
     torch.testing.assert_close(state["grad_accum"], norms, rtol=4 * ulp, atol=0)
     assert torch.equal(state["grad_count"], torch.full((len(trained),), 5.0))
     scene = gaussians_from(resident._session.scene())
-    for name, t in scene[: len(context)].tensors().items():
-        assert torch.equal(t, context.tensors()[name]), name
+    for name, t in scene[: len(static)].tensors().items():
+        assert torch.equal(t, static.tensors()[name]), name
 
 
 # --- whole steps against the torch trainer -------------------------------------------------------
@@ -296,23 +290,23 @@ def _problem(sh_degree: int = 1, view_size: int = 24) -> tuple[Gaussians, TrainV
 STEPS = 20
 
 
-def _with_context(g: Gaussians) -> tuple[Gaussians, Gaussians]:
-    """The dynamic stage in miniature: a frozen context covers the whole sphere (a copy of
+def _with_static(g: Gaussians) -> tuple[Gaussians, Gaussians]:
+    """The dynamic stage in miniature: a frozen static set covers the whole sphere (a copy of
     ``g``, every other one moved 2 % nearer the views' centre and the rest 2 % farther,
     half as opaque and in other colours) and the trained set is ``g``'s upper cap, its
-    Gaussians shrunk to a fifth so that they interleave in depth with the context there
-    and reach no tile below: those hold the context alone, which the device copies from
-    its render of the context."""
+    Gaussians shrunk to a fifth so that they interleave in depth with the static set there
+    and reach no tile below: those hold the static set alone, which the device copies from
+    its render of the static set."""
     radial = torch.where(torch.arange(len(g)) % 2 == 0, 0.98, 1.02)[:, None]
-    context = Gaussians(g.means * radial, g.log_scales, g.quats, g.opacity_logits - 1.0,
-                        g.sh.flip(-1))  # fmt: skip
+    static = Gaussians(g.means * radial, g.log_scales, g.quats, g.opacity_logits - 1.0,
+                       g.sh.flip(-1))  # fmt: skip
     cap = g[g.means[:, 2] > 0.5 * g.means.norm(dim=-1)]
     return Gaussians(cap.means, cap.log_scales - 1.5, cap.quats, cap.opacity_logits,
-                     cap.sh), context  # fmt: skip
+                     cap.sh), static  # fmt: skip
 
 
-@pytest.mark.parametrize("with_context", [False, True], ids=["alone", "frozen context"])
-def test_resident_trainer_follows_the_torch_trainer_for_k_steps(with_context: bool) -> None:
+@pytest.mark.parametrize("with_static", [False, True], ids=["alone", "frozen static set"])
+def test_resident_trainer_follows_the_torch_trainer_for_k_steps(with_static: bool) -> None:
     """K = 20 steps of both trainers from one start on the same views (same seed), every
     loss term on. Both render with the same wgpu kernels; what differs is float32 summation
     order in the losses (the device's separable tree sums against kornia's convolutions and
@@ -324,20 +318,20 @@ def test_resident_trainer_follows_the_torch_trainer_for_k_steps(with_context: bo
     ≤ 7e-5 after 40: the differences do not compound, they stay a small fraction of the
     movement. The tolerance is 1e-3 of the movement and, elementwise, 1e-2 of the largest
     K-step change (K·lr, times the largest unit for means): ≥ 7× the measured figures.
-    With a frozen context in front of and behind the trained Gaussians, the device copies
-    the tiles of the context alone from the context's render, its backward skips the
-    context's gradients and stops each pixel's walk at its front-most trained Gaussian;
+    With a frozen static set in front of and behind the trained Gaussians, the device copies
+    the tiles of the static set alone from the static set's render, its backward skips the
+    static set's gradients and stops each pixel's walk at its front-most trained Gaussian;
     torch's autograd through every Gaussian, blended everywhere, is the reference. L_temporal
     is off there: its L1 against the previous render changes sign where the two meet, and
-    with the context one Gaussian meets it so closely that the trainers' rounding sends
+    with the static set one Gaussian meets it so closely that the trainers' rounding sends
     its mean apart by 0.016 in 20 steps (with this extension or the one before the frozen
-    context was skipped alike); every other term agrees to 2e-5."""
-    g, views = _problem(view_size=48 if with_context else 24)  # tiles of the context alone
-    g, context = _with_context(g) if with_context else (g, None)
-    knobs = Knobs(iterations=STEPS, lambda_temporal=0.0 if with_context else 0.1,
+    static set was skipped alike); every other term agrees to 2e-5."""
+    g, views = _problem(view_size=48 if with_static else 24)  # tiles of the static set alone
+    g, static = _with_static(g) if with_static else (g, None)
+    knobs = Knobs(iterations=STEPS, lambda_temporal=0.0 if with_static else 0.1,
                   lambda_geo=0.05)  # fmt: skip
-    expected = GaussianTrainer(g, views, knobs, _render, context=context, seed=3).run()
-    resident = ResidentTrainer(g, views, knobs, context=context, seed=3)
+    expected = GaussianTrainer(g, views, knobs, _render, static=static, seed=3).run()
+    resident = ResidentTrainer(g, views, knobs, static=static, seed=3)
     got = resident.run()
     assert resident.step == STEPS and math.isfinite(resident.last_loss)
     unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
@@ -407,15 +401,15 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(kind: str) -
     """One densify-and-prune after 3 steps, in both trainers: the shared decision
     (split_and_prune) is applied exactly, transparent Gaussians go, the count stays within
     the budget, nothing is NaN, survivors keep their Adam moments and split children start
-    at zero, the step count goes on, the statistics restart and the context is untouched."""
+    at zero, the step count goes on, the statistics restart and the static set is untouched."""
     g, views = _problem()
-    context, trainable = g[: len(g) // 2], g[len(g) // 2 :].map(torch.clone)
+    static, trainable = g[: len(g) // 2], g[len(g) // 2 :].map(torch.clone)
     trainable.opacity_logits[:3] = -20.0  # transparent: pruned
     # gradient_scale: every Gaussian a view moves is over the threshold; the budget binds.
     knobs = Knobs(
         iterations=10, lambda_geo=0.05, max_gaussians=len(trainable) + 4, gradient_scale=1e6
     )
-    trainer = make_trainer(kind, trainable, views, knobs, _render, context=context, seed=0)
+    trainer = make_trainer(kind, trainable, views, knobs, _render, static=static, seed=0)
     for _ in range(3):
         trainer.train_step()
     before, moments = trainer.result(), _moments(trainer)
@@ -447,13 +441,13 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(kind: str) -
     if isinstance(trainer, ResidentTrainer):
         assert trainer._state()["adam_steps"] == 3
         scene = gaussians_from(trainer._session.scene())
-        kept = scene[: len(context)]
+        kept = scene[: len(static)]
     else:
         assert all(float(s["step"]) == 3 for s in trainer.optimiser.state.values())
-        assert trainer.context is not None
-        kept = trainer.context
+        assert trainer.static is not None
+        kept = trainer.static
     for name, t in kept.tensors().items():
-        assert torch.equal(t, context.tensors()[name]), name
+        assert torch.equal(t, static.tensors()[name]), name
     # And densification inside the loop (every 2 steps from 20 % to 50 %).
     knobs = knobs.model_copy(update={"densify": True, "densify_every": 2})
     trainer.knobs = knobs
@@ -548,7 +542,7 @@ def test_pano4d_train_runs_the_resident_loop_by_default_and_resumes_only_its_own
     from pano4d import ply4d, synth
     from pano4d.config import load_config
     from pano4d.lift.checkpoints import TrainError
-    from pano4d.lift.pipeline import trainer_for
+    from pano4d.lift.trainers import trainer_for
     from pano4d.train import run_train
 
     root = tmp_path / "scene"

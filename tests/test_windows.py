@@ -14,8 +14,9 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import GaussianTrainer, Knobs, Trainer, TrainViews
 from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.torch_trainer import GaussianTrainer
+from pano4d.lift.trainer import Knobs, Trainer, TrainViews
 from pano4d.lift.windows import (
     SSIM_MARGIN,
     ViewWindow,
@@ -58,18 +59,18 @@ def scene() -> dict[str, object]:
     window = reach_window(camera, torch.zeros(H, W), dynamic, "wgpu")
     s = render(static, camera)
     windows = windowed(views, [window], [s])
-    context = static[touching(static, windows.cameras, "wgpu")]
+    static_drawn = static[touching(static, windows.cameras, "wgpu")]
     return {
         "camera": camera, "static": static, "dynamic": dynamic, "views": views,
-        "window": window, "windows": windows, "context": context,
+        "window": window, "windows": windows, "static_drawn": static_drawn,
     }  # fmt: skip
 
 
 def test_the_window_and_the_static_set_follow_the_dynamic_set(scene: dict) -> None:
-    window, static, context = scene["window"], scene["static"], scene["context"]
+    window, static, static_drawn = scene["window"], scene["static"], scene["static_drawn"]
     assert isinstance(window, ViewWindow)
     assert window.share(scene["camera"]) < 0.7  # the dynamic set sits to one side
-    assert 0 < len(context) < 0.9 * len(static)
+    assert 0 < len(static_drawn) < 0.9 * len(static)
     # Every static Gaussian left out draws nothing into the window.
     camera = scene["windows"].cameras[0]
     dropped = static[~touching(static, [camera], "wgpu")]
@@ -86,19 +87,19 @@ def test_the_previous_frame_renders_only_its_window(scene: dict) -> None:
     previous = replace(dynamic, sh=torch.randn(dynamic.sh.shape, generator=gen))
     whole = render(Gaussians.cat([static, previous]), camera).rgb
     pasted = previous_in_windows(
-        render, [window], [camera], [render(static, camera)], scene["context"], previous
+        render, [window], [camera], [render(static, camera)], scene["static_drawn"], previous
     )[0]
     assert window.share(camera) < 0.7
     assert float((whole - render(static, camera).rgb).abs().max()) > 0.1  # previous shows
     assert torch.allclose(pasted, whole, rtol=0, atol=1e-5)
 
 
-def trainer(kind: str, views: TrainViews, context: Gaussians, dynamic: Gaussians) -> Trainer:
+def trainer(kind: str, views: TrainViews, static: Gaussians, dynamic: Gaussians) -> Trainer:
     if kind == "torch":
         return GaussianTrainer(
-            dynamic, views, KNOBS, lambda g, c, b: render(g, c, background=b), context, seed=3
+            dynamic, views, KNOBS, lambda g, c, b: render(g, c, background=b), static, seed=3
         )
-    return ResidentTrainer(dynamic, views, KNOBS, context=context, seed=3)
+    return ResidentTrainer(dynamic, views, KNOBS, static=static, seed=3)
 
 
 def _by_name(parts: object) -> dict[str, float]:
@@ -111,7 +112,7 @@ def _by_name(parts: object) -> dict[str, float]:
 @pytest.mark.parametrize("kind", ["torch", "resident"])
 def test_one_windowed_step_is_the_whole_views_step(scene: dict, kind: str) -> None:
     whole = trainer(kind, scene["views"], scene["static"], scene["dynamic"])
-    part = trainer(kind, scene["windows"], scene["context"], scene["dynamic"])
+    part = trainer(kind, scene["windows"], scene["static_drawn"], scene["dynamic"])
     assert scene["windows"].cameras[0].width < W
     before = scene["dynamic"]
     if isinstance(whole, GaussianTrainer) and isinstance(part, GaussianTrainer):
@@ -149,7 +150,7 @@ def test_the_pixel_gradient_is_the_whole_views_where_the_set_can_draw(scene: dic
     camera = scene["camera"]
     gradients = []
     for views, cam in [(scene["views"], camera), (scene["windows"], window.camera(camera))]:
-        t = ResidentTrainer(scene["dynamic"], views, KNOBS, context=scene["static"])
+        t = ResidentTrainer(scene["dynamic"], views, KNOBS, static=scene["static"])
         out = render(scene_all, cam)
         pixels = torch.cat([out.rgb, out.alpha[..., None], (out.depth * out.alpha)[..., None]], -1)
         gradient = t._session.loss_gradient(0, pixels.reshape(-1).numpy()).pixel_gradient

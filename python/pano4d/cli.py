@@ -14,25 +14,18 @@ import traceback
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Literal, NoReturn
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from typer.core import TyperGroup
 
-from pano4d.errors import InputError
+from pano4d.errors import InputError, fail
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY
 from pano4d.region_cli import app as regions_app
 
 console = Console(stderr=True)
 Backend = Literal["wgpu", "torch"]
-
-
-def fail(message: str, code: int = 2) -> NoReturn:
-    """Print a clear error (no traceback) and exit with ``code`` (2: bad input)."""
-    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code=code)
 
 
 def describe(error: OSError) -> str:
@@ -421,7 +414,7 @@ def train(
 
     Checkpoints after every stage; run the same command again to resume after a kill."""
     from pano4d.config import load_config
-    from pano4d.lift.pipeline import trainer_for
+    from pano4d.lift.trainers import trainer_for
     from pano4d.train import run_train
 
     cfg = load_config(scene)

@@ -86,6 +86,14 @@ class ConfigError(InputError, ValueError):
 LoosePath = Annotated[Path, Field(strict=False)]
 
 
+class _DynamicOnly:
+    """Marks a knob only the dynamic stage reads (``Annotated[type, DYNAMIC_ONLY]``):
+    changing it keeps the static set's checkpoint (``lift.checkpoints.stage_keys``)."""
+
+
+DYNAMIC_ONLY = _DynamicOnly()
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
@@ -94,7 +102,7 @@ class OptimisationKnobs(BaseModel):
     """How Gaussians are optimised: the loss weights, densification and the learning rates.
 
     The one definition of these knobs: a preset's (``PresetKnobs``) and each optimisation's
-    (``lift.optimize.Knobs``, what both trainers read and the resident one hands to the GPU
+    (``lift.trainer.Knobs``, what both trainers read and the resident one hands to the GPU
     as ``pano4d._core.TrainSettings``) extend it. A default is the term switched off, or the
     value every preset uses; the learning rates are knobs because they are the first thing
     to tune when a scene under- or over-fits in its steps (3DGS exposes the same ones).
@@ -113,7 +121,7 @@ class OptimisationKnobs(BaseModel):
     # instead of always at the count; off in every preset until measured at balanced (at
     # draft it saved 10 % of the steps and lost up to 0.5 dB on the frames it stopped early,
     # bench/RESULTS.md).
-    stop_when_converged: bool = False
+    stop_when_converged: Annotated[bool, DYNAMIC_ONLY] = False
     # Adam's learning rates; positions move as offsets in units of each Gaussian's initial
     # depth, so one rate fits a Gaussian at 2 m and one at 1000 m.
     lr_position: float = Field(1e-3, ge=0)
@@ -138,13 +146,13 @@ class StageKnobs(BaseModel):
     # The share of gaussian_iterations each later timestamp runs: it starts from t − 1's set
     # with the frame's colour change applied (lift/initial.follow_frame_change), so it needs
     # fewer steps than t = 0; lower is faster and less exact (bench/RESULTS.md: "Frames").
-    later_iteration_share: float = Field(0.5, gt=0, le=1)
+    later_iteration_share: Annotated[float, DYNAMIC_ONLY] = Field(0.5, gt=0, le=1)
     max_gaussians: int = Field(ge=1)  # the budget: static plus one timestamp's dynamic set
     sh_degree: int = Field(ge=0, le=3)  # spherical-harmonics degree of the Gaussians' colour
     # A dynamic step renders only the window of each view that the dynamic set can reach,
     # with the static Gaussians that can draw into it (lift/windows.py: the same loss and
     # gradient as the whole view's); false renders whole views, to compare.
-    dynamic_windows: bool = True
+    dynamic_windows: Annotated[bool, DYNAMIC_ONLY] = True
 
 
 class PresetKnobs(OptimisationKnobs, StageKnobs):

@@ -14,6 +14,8 @@ from typing import Annotated, Any
 
 import typer
 
+from pano4d.errors import fail
+
 app = typer.Typer(
     name="regions",
     help="Read, save and preview a scene's regions (what pano4d-view --edit runs).",
@@ -22,8 +24,6 @@ app = typer.Typer(
 
 
 def _regions_from_stdin() -> list[dict[str, Any]]:
-    from pano4d.cli import fail
-
     try:
         payload = json.loads(sys.stdin.read())
     except json.JSONDecodeError as error:
@@ -36,7 +36,6 @@ def _regions_from_stdin() -> list[dict[str, Any]]:
 
 def _run(action: Any) -> None:
     """Print ``action()``'s result as JSON, or fail with its ConfigError / ImageError."""
-    from pano4d.cli import fail
     from pano4d.config import ConfigError
     from pano4d.images import ImageError
 

@@ -29,14 +29,9 @@ from typing import Any
 from pano4d.config import SceneConfig, config_hash, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints
 from pano4d.lift.export import export
-from pano4d.lift.pipeline import (
-    StepHook,
-    animation_frames,
-    lift,
-    trainer_for,
-    working_panorama,
-)
+from pano4d.lift.pipeline import StepHook, animation_frames, lift, working_panorama
 from pano4d.lift.pipeline import resume_point as lift_resume_point
+from pano4d.lift.trainers import trainer_for
 from pano4d.progress import Bars
 
 KILL_AT_ENV = "PANO4D_TEST_KILL_AT"

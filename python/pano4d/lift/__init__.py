@@ -4,7 +4,10 @@
 ``depth``: monocular depth backends (layout prior, depth file, DPT / Depth Anything).
 ``align``: spatial-temporal alignment of per-view depth into one spherical depth per frame.
 ``initial``: initial Gaussians from the aligned depth, static/dynamic split.
-``optimize``: per-timestamp optimisation (L_rgb, L_temporal, L_geo, L_sem), densify/prune.
+``trainer``: what a trainer is (``Trainer``) and is given (``TrainViews``, ``Knobs``).
+``torch_trainer``, ``resident``: the trainers, the torch reference and the one on the GPU
+(the default); their losses are ``losses``', their densification ``densify``'s.
+``trainers``: which trainers exist (what the command line and ``pipeline`` read).
 ``features``: the DINOv2 feature backend for L_sem.
 ``checkpoints``: each stage's saved state, so a killed run resumes.
 ``export``: the files a run writes (scene.ply4d, preview, contact sheet, metrics).

@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from pano4d.config import SceneConfig
+from pano4d.config import DYNAMIC_ONLY, PresetKnobs, SceneConfig
 from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 
@@ -39,8 +39,11 @@ def save_atomic(path: Path, payload: dict[str, Any]) -> None:
         torch.save(payload, tmp)
 
 
-# Knobs only the dynamic stage reads: changing one keeps the static set's checkpoint.
-DYNAMIC_ONLY_KNOBS = ("later_iteration_share", "stop_when_converged", "dynamic_windows")
+# Knobs only the dynamic stage reads (marked DYNAMIC_ONLY where config declares them):
+# changing one keeps the static set's checkpoint.
+DYNAMIC_ONLY_KNOBS = tuple(
+    name for name, info in PresetKnobs.model_fields.items() if DYNAMIC_ONLY in info.metadata
+)
 
 
 def stage_keys(cfg: SceneConfig) -> dict[str, str]:

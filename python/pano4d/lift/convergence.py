@@ -1,7 +1,7 @@
 """When a lifting optimisation has converged: the rule that lets a dynamic set's iterations
 follow the change between frames instead of a fixed count.
 
-An optimisation records its loss every ``LOG_EVERY`` steps (``diagnosis.TrainLog``), each
+An optimisation records its loss every ``LOSS_EVERY`` steps (``diagnosis.TrainLog``), each
 record the loss of that step's one view, drawn at random, and which view that was. Views
 differ in how hard they are far more than a converging fit changes between two records, so
 the rule never compares records of different views: each record is set against the last

@@ -1,7 +1,7 @@
 """What each optimisation of a lifting run did, for the user (written beside metrics.json).
 
 Every optimisation (the static set; the dynamic set of each timestamp) keeps a ``TrainLog``:
-its loss and each active loss term every ``LOG_EVERY`` steps, and one ``DensifyStats`` per
+its loss and each active loss term every ``LOSS_EVERY`` steps, and one ``DensifyStats`` per
 densify-and-prune. The log is part of the trainer's checkpoint, so a resumed run's log is the
 uninterrupted run's. ``write_diagnosis`` writes
 
@@ -33,7 +33,10 @@ from pano4d.fsutil import write_json_atomic, write_text_atomic
 from pano4d.images import write_image
 from pano4d.lift.convergence import Stop
 
-LOG_EVERY = 10  # steps between loss records (the resident trainer reads its loss this often)
+# Steps between loss records: ``pipeline.run_trainer`` records the loss terms this often,
+# and the resident trainer reads its loss back from the device this often (and at the last
+# step) so that each record holds that step's loss.
+LOSS_EVERY = 10
 # The terms a loss record may hold, in plot order, and their colours.
 TERMS = {
     "total": (0.95, 0.95, 0.95),
@@ -83,9 +86,9 @@ class TrainLog:
     densify: list[DensifyStats] = field(default_factory=list)
     stop: Stop | None = None  # where and why it stopped, once it has
     # What a step rendered (a dynamic step renders windows, lift.windows): the windows'
-    # share of the views' pixels and the context (static) Gaussians rendered with the set.
+    # share of the views' pixels and how many of the static Gaussians it drew with the set.
     window_share: float = 1.0
-    context: int = 0
+    static_drawn: int = 0
 
     def record_loss(self, step: int, view: int, terms: Mapping[str, SupportsFloat]) -> None:
         """The loss terms of ``step``, whose one view was ``view``."""
@@ -103,7 +106,7 @@ class TrainLog:
             "densify": [asdict(d) for d in self.densify],
             "stop": self.stop.to_dict() if self.stop is not None else None,
             "window_share": self.window_share,
-            "context": self.context,
+            "static_drawn": self.static_drawn,
         }
 
     @classmethod
@@ -113,7 +116,7 @@ class TrainLog:
             d["name"], int(d["start"]), [dict(r) for r in d["losses"]],
             [DensifyStats(**s) for s in d["densify"]],
             Stop(**stop) if stop is not None else None,
-            float(d.get("window_share", 1.0)), int(d.get("context", 0)),
+            float(d.get("window_share", 1.0)), int(d.get("static_drawn", 0)),
         )  # fmt: skip
 
     def terms(self) -> list[str]:
@@ -139,11 +142,11 @@ def write_diagnosis(out: Path, logs: list[tuple[TrainLog, int]]) -> None:
     lines = [json.dumps(line) for log, stored in logs for line in densify_lines(log, stored)]
     write_text_atomic(out / "densify.jsonl", "\n".join(lines) + "\n")
     write_json_atomic(out / "losses.json", {
-        "every": LOG_EVERY,
+        "every": LOSS_EVERY,
         "names": TERM_NAMES,
         "optimisations": [{"name": log.name, "terms": log.terms(), "losses": log.losses,
                            "stop": log.stop.to_dict() if log.stop is not None else None,
-                           "window_share": log.window_share, "context": log.context}
+                           "window_share": log.window_share, "static_drawn": log.static_drawn}
                           for log, _ in logs],
     })  # fmt: skip
     static = [log for log, _ in logs if log.name == "static"]

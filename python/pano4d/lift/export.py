@@ -26,7 +26,7 @@ from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image, write_contact_sheet, write_video
 from pano4d.lift.diagnosis import write_diagnosis
-from pano4d.lift.optimize import moved_camera
+from pano4d.lift.losses import moved_camera
 from pano4d.lift.pipeline import (
     Alignment,
     DynamicSets,
@@ -260,6 +260,8 @@ def run_metrics(
     size = path.stat().st_size
     bytes_per = size / max(stored, 1)
     iters = inputs.knobs.gaussian_iterations
+    # Every timestamp trained whole: at a step timed on the whole scene in whole views
+    # (pipeline.whole_scene_step), or the static stage's step when nothing moved.
     step = dynamic.full_scene_step if dynamic.full_scene_step is not None else static.per_step
     whole_seconds = len(scene.dynamic) * iters * step
     spent = static.seconds + dynamic.seconds

@@ -46,7 +46,7 @@ from pano4d.lift.align import DepthAligner, FrameAlignment
 from pano4d.lift.checkpoints import Checkpoints, TrainError
 from pano4d.lift.convergence import StopRule
 from pano4d.lift.depth import make_depth_backend
-from pano4d.lift.diagnosis import LOG_EVERY, TrainLog
+from pano4d.lift.diagnosis import LOSS_EVERY, TrainLog
 from pano4d.lift.features import make_feature_model
 from pano4d.lift.initial import (
     follow_frame_change,
@@ -54,15 +54,8 @@ from pano4d.lift.initial import (
     init_sphere,
     points_in_mask,
 )
-from pano4d.lift.optimize import (
-    FeatureModel,
-    GaussianTrainer,
-    Knobs,
-    RenderFn,
-    Trainer,
-    TrainViews,
-)
-from pano4d.lift.resident import ResidentTrainer
+from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
+from pano4d.lift.trainers import trainer_kind
 from pano4d.lift.windows import previous_in_windows, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
@@ -74,24 +67,6 @@ from pano4d.sphere import view_layout
 # align (step: the iteration within the frame), static and dynamic stages (step: steps
 # done) and a file of the export (step: files written). Tests interrupt a run with it.
 StepHook = Callable[[str, int], None]
-# The optimisers: "resident" keeps the Gaussians, Adam and the losses on the GPU (wgpu);
-# "torch" is GaussianTrainer, the reference (losses and Adam in torch, any rasteriser).
-TRAINERS: dict[str, type[Trainer]] = {"resident": ResidentTrainer, "torch": GaussianTrainer}
-
-
-def trainer_for(render_backend: str, trainer: str | None) -> str:
-    """The trainer to use: ``trainer``, or by default the resident one on wgpu and the torch
-    one with the torch rasteriser (the resident loop renders with wgpu only)."""
-    if trainer is None:
-        return "resident" if render_backend == "wgpu" else "torch"
-    if trainer not in TRAINERS:
-        raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {trainer!r}")
-    if trainer == "resident" and render_backend != "wgpu":
-        raise ValueError(
-            f"the resident trainer renders with wgpu, not the {render_backend!r} rasteriser: "
-            "use the torch trainer with that backend"
-        )
-    return trainer
 
 
 # --- 1. inputs -------------------------------------------------------------------------------
@@ -106,7 +81,7 @@ class LiftInputs:
     frames: torch.Tensor  # (L, H, W, 3) at the working resolution
     moving: torch.Tensor  # (H, W) bool, the grown moving region at the working resolution
     render_backend: str  # "wgpu" | "torch"
-    trainer: str  # a key of TRAINERS
+    trainer: str  # a key of trainers.TRAINERS
 
     def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
         from pano4d.renderer import render
@@ -311,22 +286,15 @@ def make_trainer(
     views: TrainViews,
     knobs: Knobs,
     render: RenderFn,
-    context: Gaussians | None = None,
+    static: Gaussians | None = None,
     features: FeatureModel | None = None,
     seed: int = 0,
 ) -> Trainer:
-    """The optimiser of one set of Gaussians: the one place the stages build one. ``kind`` is
-    a key of TRAINERS; both trainers see the same views in the same order (same seed).
-    ``render`` is the torch trainer's rasteriser; the resident one renders on the device."""
-    if kind == "torch":
-        return GaussianTrainer(
-            gaussians, views, knobs, render, context=context, features=features, seed=seed
-        )
-    if kind == "resident":
-        return ResidentTrainer(
-            gaussians, views, knobs, context=context, features=features, seed=seed
-        )
-    raise ValueError(f"trainer must be one of {sorted(TRAINERS)}, got {kind!r}")
+    """The optimiser of one set of Gaussians, over the frozen ``static`` set if given: the
+    one place the stages build one. ``kind`` is a key of trainers.TRAINERS; both trainers
+    see the same views in the same order (same seed). ``render`` is the torch trainer's
+    rasteriser; the resident one renders on the device."""
+    return trainer_kind(kind).build(gaussians, views, knobs, render, static, features, seed)
 
 
 def resume(trainer: Trainer, state: dict[str, Any], kind: str, path: Path) -> None:
@@ -397,7 +365,7 @@ def run_trainer(
     extra: Callable[[], dict[str, Any]],
     rule: StopRule,
 ) -> Gaussians:
-    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOG_EVERY steps
+    """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOSS_EVERY steps
     and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
     ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too).
     ``rule`` decides, at each loss record, whether it has converged; where and why it
@@ -407,7 +375,7 @@ def run_trainer(
     def step(tr: Trainer) -> bool:
         task.update(tr.step, loss=tr.last_loss)
         stop = None
-        if tr.step % LOG_EVERY == 0 or tr.step == tr.knobs.iterations:
+        if tr.step % LOSS_EVERY == 0 or tr.step == tr.knobs.iterations:
             log.record_loss(tr.step, tr.last_view, tr.last_terms)
             stop = rule.check(log.losses, tr.step)
         if tr.last_densify is not None and tr.last_densify.step == tr.step:
@@ -498,16 +466,58 @@ def fit_static(
 class DynamicSets:
     gaussians: list[Gaussians]  # one set per timestamp
     seconds: float
-    # Seconds per step when a step renders static + dynamic, as whole-timestamp training
-    # would; None when nothing was optimised.
+    # Seconds per step when a step renders the whole static set and the dynamic set in
+    # whole views, as training each timestamp whole would (``whole_scene_step``); None when
+    # nothing was optimised.
     full_scene_step: float | None
     logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
+
+
+WHOLE_SCENE_STEPS = 10  # steps ``whole_scene_step`` times, after one to warm up
 
 
 def dynamic_iterations(full: int, t: int, later_share: float) -> int:
     """At most this many steps for timestamp t: the full count first, ``later_share`` of it
     for the warm-started later ones; the stop rule (``convergence``) may end either sooner."""
     return full if t == 0 else max(1, round(full * later_share))
+
+
+def previous_renders(
+    inputs: LiftInputs, static: Gaussians, previous: Gaussians, cameras: list[Camera]
+) -> torch.Tensor:
+    """L_temporal's target in whole views: t − 1's scene (``static`` and ``previous``)
+    rendered by ``cameras``, (V, h, w, 3)."""
+    with torch.no_grad():
+        scene = Gaussians.cat([static, previous])
+        return torch.stack([inputs.render(scene, c).rgb for c in cameras])
+
+
+def whole_scene_step(
+    inputs: LiftInputs,
+    static: Gaussians,
+    dynamic: Gaussians,
+    views: TrainViews,
+    knobs: Knobs,
+    features: FeatureModel | None,
+) -> float:
+    """Seconds per step of training ``dynamic`` over the whole ``static`` set in whole
+    ``views`` (no windows), as training a timestamp whole would: metrics.json's estimate of
+    what the dynamic stage saves (``export.run_metrics``). A timing only: the trainer is
+    thrown away and draws from its own generator, so nothing it does reaches a result."""
+    # As many steps as are timed (and the warm-up), so that L_sem's schedule runs on about
+    # the share of them it runs on in a stage; no densification.
+    knobs = knobs.model_copy(update={"iterations": 1 + WHOLE_SCENE_STEPS, "densify": False})
+    trainer = make_trainer(
+        inputs.trainer, dynamic, views, knobs, inputs.render, static=static, features=features,
+        seed=inputs.cfg.seed,
+    )  # fmt: skip
+    trainer.train_step()  # the first step builds the device's pipelines and sizes its buffers
+    trainer.result()  # reading the Gaussians back waits for the device's steps to finish
+    start = time.perf_counter()
+    for _ in range(WHOLE_SCENE_STEPS):
+        trainer.train_step()
+    trainer.result()
+    return (time.perf_counter() - start) / WHOLE_SCENE_STEPS
 
 
 def fit_dynamic(
@@ -560,7 +570,8 @@ def fit_dynamic(
         )  # fmt: skip
         views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
         previous = done[-1] if t > 0 else None
-        context, reach = static, None
+        # The static Gaussians a step draws: all of them, or those that can draw into a window.
+        static_drawn, reach = static, None
         if windows:
             # The window holds t − 1's set too, so that outside it t − 1's render (L_temporal's
             # target) is the static render.
@@ -568,16 +579,14 @@ def fit_dynamic(
             backend = inputs.render_backend
             reach = [reach_window(cameras[i], moving[i], drawn, backend) for i in seeing]
             window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
-            context = static[touching(static, window_cameras, backend)]
+            static_drawn = static[touching(static, window_cameras, backend)]
         if previous is not None and reach is not None:  # L_temporal's target: t − 1's render
             with torch.no_grad():
                 views.previous = previous_in_windows(
-                    inputs.render, reach, cams, static_renders, context, previous
+                    inputs.render, reach, cams, static_renders, static_drawn, previous
                 )
         elif previous is not None:
-            with torch.no_grad():
-                scene = Gaussians.cat([static, previous])
-                views.previous = torch.stack([inputs.render(scene, c).rgb for c in cams])
+            views.previous = previous_renders(inputs, static, previous, cams)
         if reach is not None:
             views = windowed(views, reach, static_renders)
         iterations = dynamic_iterations(full, t, inputs.knobs.later_iteration_share)
@@ -593,7 +602,7 @@ def fit_dynamic(
             views,
             stage,
             inputs.render,
-            context=context,
+            static=static_drawn,
             features=features,
             seed=inputs.cfg.seed + 1 + t,
         )
@@ -603,7 +612,7 @@ def fit_dynamic(
         else:
             logs.append(TrainLog(f"dynamic t={t}", len(dynamic)))
         log = logs[t]
-        log.context = len(context)
+        log.static_drawn = len(static_drawn)
         log.window_share = sum(c.width * c.height for c in views.cameras) / (len(cams) * h * w)
         rule = (
             StopRule.for_count(full, iterations, [earlier.losses for earlier in logs[:t]])
@@ -616,8 +625,15 @@ def fit_dynamic(
             )
         )
         checkpoints.save("dynamic", saved())
-    steps = sum(log.stop.step for log in logs if log.stop is not None)
-    return DynamicSets(done, seconds(), seconds() / max(1, steps), logs)
+    spent = seconds()
+    # The last timestamp's step, trained whole.
+    t = total - 1
+    views = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
+    if t > 0:
+        views.previous = previous_renders(inputs, static, done[t - 1], cams)
+    stage = trainer_knobs(inputs.knobs, full, budget, median_depth, cams, inputs.frames.shape[2])
+    step = whole_scene_step(inputs, static, done[t], views, stage, features)
+    return DynamicSets(done, spent, step, logs)
 
 
 # --- where a rerun picks up ------------------------------------------------------------------
@@ -674,7 +690,7 @@ def lift(
     animate_seconds: float,
 ) -> Lifted:
     """Every stage in order on the animation in ``frames_dir``; ``trainer`` is a key of
-    TRAINERS."""
+    trainers.TRAINERS."""
     inputs = prepare(cfg, frames_dir, render_backend, trainer)
     view_depth = estimate_depth(inputs, checkpoints, bars, on_step)
     alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)

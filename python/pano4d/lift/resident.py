@@ -35,19 +35,10 @@ import torch.nn.functional as F
 
 from pano4d.extension import core, flat, gaussian_arrays, gaussians_from, view
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import (
-    ADAM_BETAS,
-    ADAM_EPS,
-    Knobs,
-    Trainer,
-    densify_due,
-    learning_rates,
-    moved_camera,
-    sem_alpha,
-    split_and_prune,
-)
-
-LOSS_EVERY = 10  # steps between loss read-backs (the progress bar's figure)
+from pano4d.lift.densify import densify_due, split_and_prune
+from pano4d.lift.diagnosis import LOSS_EVERY
+from pano4d.lift.losses import moved_camera, sem_alpha
+from pano4d.lift.trainer import ADAM_BETAS, ADAM_EPS, Knobs, Trainer, learning_rates
 
 
 def train_settings(
@@ -69,24 +60,24 @@ def train_settings(
 
 
 class ResidentTrainer(Trainer):
-    """Optimises one set of Gaussians (optionally against a frozen context) on the GPU."""
+    """Optimises one set of Gaussians (optionally over the frozen static set) on the GPU."""
 
     sem_every = 1  # steps between semantic-loss evaluations (each reads two renders back)
     overflowed_frames = 0  # steps whose frame outgrew the intersection buffers (no gradient)
 
     def _start(self, gaussians: Gaussians) -> None:
         g = gaussians.detach()
-        ctx = Gaussians.empty(g.sh_degree) if self.context is None else self.context
-        if ctx.sh_degree > g.sh_degree:
+        static = Gaussians.empty(g.sh_degree) if self.static is None else self.static
+        if static.sh_degree > g.sh_degree:
             raise ValueError(
-                f"the context's SH degree ({ctx.sh_degree}) is above the trained set's "
-                f"({g.sh_degree}); give the trained set at least the context's degree"
+                f"the static set's SH degree ({static.sh_degree}) is above the trained set's "
+                f"({g.sh_degree}); give the trained set at least the static set's degree"
             )
-        ctx = ctx.with_sh_degree(g.sh_degree)
+        static = static.with_sh_degree(g.sh_degree)
         bg = torch.zeros(3) if self.background is None else torch.as_tensor(self.background)
         unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
         self._session = core.TrainSession(
-            static_set=gaussian_arrays(ctx),
+            static_set=gaussian_arrays(static),
             trained=gaussian_arrays(g),
             unit=flat(unit),
             views=self._view_targets(),

@@ -35,7 +35,8 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
-from pano4d.lift.optimize import OUTSIDE_SUMS, SSIM_WINDOW, TrainViews, ssim_map
+from pano4d.lift.losses import OUTSIDE_SUMS, SSIM_WINDOW, ssim_map
+from pano4d.lift.trainer import TrainViews
 from pano4d.renderer import RenderOutput, footprints
 
 SSIM_MARGIN = SSIM_WINDOW  # 2r + 1 pixels between the reach and the window's edge (above)
@@ -136,18 +137,19 @@ def previous_in_windows(
     render: Callable[[Gaussians, Camera], RenderOutput],
     windows: list[ViewWindow],
     cameras: list[Camera],
-    static: list[RenderOutput],
-    context: Gaussians,
+    static_renders: list[RenderOutput],
+    static_drawn: Gaussians,
     previous: Gaussians,
 ) -> torch.Tensor:
     """(V, H, W, 3): the render of the static set and t − 1's dynamic set ``previous`` in
     each view (L_temporal's target), for ``windows`` that hold ``previous``'s footprints:
-    each window is rendered from the ``context`` that can draw into it and ``previous``,
-    and pasted into the static set's render of its view (``static``), which is the
-    whole render outside the window since ``previous`` draws nothing there."""
-    seen = Gaussians.cat([context, previous])
+    each window is rendered from the static Gaussians that can draw into it
+    (``static_drawn``) and ``previous``, and pasted into the static set's render of its view
+    (``static_renders``), which is the whole render outside the window since ``previous``
+    draws nothing there."""
+    seen = Gaussians.cat([static_drawn, previous])
     out = []
-    for window, camera, whole in zip(windows, cameras, static, strict=True):
+    for window, camera, whole in zip(windows, cameras, static_renders, strict=True):
         image = whole.rgb.clone()
         window.crop(image)[...] = render(seen, window.camera(camera)).rgb
         out.append(image)
