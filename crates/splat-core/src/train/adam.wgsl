@@ -9,7 +9,7 @@
 // The host computes the bias corrections in f64 from the step count, as torch does, and
 // passes them rounded to f32 (train/adam.rs). One learning rate per parameter group:
 // means, log-scales, quaternions, opacity logits, SH DC, SH rest (`learning_rates()` in
-// python/pano4d/lift/optimize.py).
+// python/pano4d/lift/trainer.py).
 //
 // Means: the torch trainer optimises offsets o with mean = anchor + o·unit (unit = each
 // Gaussian's initial distance from the centre). Its gradient is g_o = unit·g_mean, and

@@ -1,6 +1,6 @@
 // The lifting phase's photometric and geometric losses and their gradient w.r.t. the
 // forward's pixels (r, g, b, alpha, D = Σ z·α·T), for one view, on the device.
-// The torch reference is `GaussianTrainer.loss_at` (python/pano4d/lift/optimize.py):
+// The torch reference is `GaussianTrainer.loss_at` (python/pano4d/lift/torch_trainer.py):
 //
 //   L = λ_l1 L1 + λ_ssim (1 − SSIM) + λ_temporal L_temporal + λ_geo (1 − Pearson)
 //

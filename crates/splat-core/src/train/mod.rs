@@ -9,7 +9,7 @@
 //! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
 //!   (`adam.wgsl`).
 //!
-//! The torch trainer (`pano4d.lift.optimize.GaussianTrainer`) is the reference; the
+//! The torch trainer (`pano4d.lift.torch_trainer.GaussianTrainer`) is the reference; the
 //! Python tests compare the two step for step.
 
 pub mod adam;
