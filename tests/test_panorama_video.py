@@ -138,13 +138,13 @@ def test_pieces_join_without_a_seam_and_stay_within_a_piece(monkeypatch) -> None
         return render(gs, camera, **kw)
 
     monkeypatch.setattr(panorama_video, "render", recording)
-    footprints = panorama_video.Footprints(g)
-    pieces = panorama_video.draw(footprints, cam, "wgpu")
+    spheres = panorama_video.GaussianSpheres(g)
+    pieces = panorama_video.draw(spheres, cam, "wgpu")
     assert len(sizes) == 4 and all(w * h <= panorama_video.PIECE_SIDE**2 for w, h, _ in sizes)
     assert all(n < len(g) for _, _, n in sizes)  # each window drew only what reaches it
     assert psnr(pieces, whole) >= 50.0
-    monkeypatch.setattr(panorama_video.Footprints, "reaching", lambda self, camera: self.g)
-    assert (panorama_video.draw(footprints, cam, "wgpu") - whole).abs().max() < 1e-5
+    monkeypatch.setattr(panorama_video.GaussianSpheres, "reaching", lambda self, camera: self.g)
+    assert (panorama_video.draw(spheres, cam, "wgpu") - whole).abs().max() < 1e-5
 
 
 def test_time_follows_the_scene_rate_in_every_video(blue_then_red: Path, tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ way, and eyes circling under one direction would swap sides as the head turns. A
 eye takes the IPD at its band's centre, so bands are ``FADE_BAND_ROWS`` rows where it fades.
 
 Every ``render()`` draws at most ``PIECE_SIDE``² pixels (``Camera.window``) and only the
-Gaussians that can reach its piece (``Footprints.reaching``), so no buffer comes near
+Gaussians that can reach its piece (``GaussianSpheres.reaching``), so no buffer comes near
 lavapipe's 128 MiB storage binding at any frame size up to ``MAX_SIZE``, and a narrow ODS
 piece costs what its own Gaussians cost.
 
@@ -128,8 +128,8 @@ class Frame360:
 
 
 # --- drawing ---------------------------------------------------------------------------------
-class Footprints:
-    """A set of Gaussians with the bound of each one's footprint (its 3σ sphere), worked
+class GaussianSpheres:
+    """A set of Gaussians with the bound of each one's reach (its 3σ sphere), worked
     out once for the many pieces of a frame."""
 
     def __init__(self, g: Gaussians) -> None:
@@ -154,14 +154,14 @@ class Footprints:
         return self.g[keep]
 
 
-def draw(footprints: Footprints, camera: Camera, backend: str) -> torch.Tensor:
+def draw(spheres: GaussianSpheres, camera: Camera, backend: str) -> torch.Tensor:
     """The camera's image (3, H, W), drawn in windows of at most ``PIECE_SIDE``²."""
     image = torch.zeros(3, camera.height, camera.width)
     for y0 in range(0, camera.height, PIECE_SIDE):
         for x0 in range(0, camera.width, PIECE_SIDE):
             h, w = min(PIECE_SIDE, camera.height - y0), min(PIECE_SIDE, camera.width - x0)
             window = camera.window(x0, y0, w, h)
-            rgb = render(footprints.reaching(window), window, backend=backend).rgb
+            rgb = render(spheres.reaching(window), window, backend=backend).rgb
             image[:, y0 : y0 + h, x0 : x0 + w] = rgb.detach().cpu().permute(2, 0, 1)
     return image
 
@@ -191,7 +191,7 @@ def face_cameras(width: int, eye: torch.Tensor) -> list[Camera]:
 
 
 def mono_equirect(
-    footprints: Footprints,
+    spheres: GaussianSpheres,
     width: int,
     height: int,
     eye: torch.Tensor,
@@ -202,7 +202,7 @@ def mono_equirect(
     cams = face_cameras(width, eye)
     faces = []
     for cam in cams:
-        faces.append(draw(footprints, cam, backend))
+        faces.append(draw(spheres, cam, backend))
         on_piece()
     out = torch.zeros(3, height, width)
     rows_per_band = max(1, BAND_PIXELS // width)
@@ -287,7 +287,7 @@ def piece_camera(dirs: torch.Tensor, eye: torch.Tensor, pixels_per_radian: float
 
 
 def ods_eye(
-    footprints: Footprints,
+    spheres: GaussianSpheres,
     width: int,
     height: int,
     centre: torch.Tensor,
@@ -309,7 +309,7 @@ def ods_eye(
             left = torch.tensor([math.sin(phi), math.cos(phi), 0.0], dtype=torch.float64)
             dirs = band_directions(width, height, rows, cols)
             cam = piece_camera(dirs, centre + side * radius * left, pixels_per_radian)
-            image = draw(footprints, cam, backend)
+            image = draw(spheres, cam, backend)
             values = perspective_sampler(dirs, cam).apply(image)
             out[:, rows.start : rows.stop, cols.start : cols.stop] = values
             on_piece()
@@ -326,15 +326,15 @@ def equirect_frame(
     """One 360° frame (H, W, 3) in [0, 1] seen from ``eye``: mono, or both eyes top-bottom
     (left on top)."""
     eye = torch.as_tensor(eye, dtype=torch.float64)
-    footprints = Footprints(g)
+    spheres = GaussianSpheres(g)
     if not frame.stereo:
-        rgb = mono_equirect(footprints, frame.width, frame.height, eye, backend, on_piece)
+        rgb = mono_equirect(spheres, frame.width, frame.height, eye, backend, on_piece)
     else:
         h = frame.eye_height
         ipd = default_ipd(g, eye) if frame.ipd is None else frame.ipd
         rgb = torch.cat([
-            ods_eye(footprints, frame.width, h, eye, ipd, +1, backend, on_piece),
-            ods_eye(footprints, frame.width, h, eye, ipd, -1, backend, on_piece),
+            ods_eye(spheres, frame.width, h, eye, ipd, +1, backend, on_piece),
+            ods_eye(spheres, frame.width, h, eye, ipd, -1, backend, on_piece),
         ])  # fmt: skip
     return camera_paths.to_image(rgb)
 
