@@ -56,7 +56,7 @@ from pano4d.fsutil import write_json_atomic  # noqa: E402
 from pano4d.gaussians import Gaussians  # noqa: E402
 from pano4d.metrics import psnr  # noqa: E402
 from pano4d.renderer import adapter_info, render  # noqa: E402
-from pano4d.resample import equirect_to_perspective, perspective_sampler  # noqa: E402
+from pano4d.resample import equirect_to_perspective  # noqa: E402
 
 LAKE_YAML = """panorama: {panorama}
 regions:
@@ -92,14 +92,7 @@ def cube_round_trip(image: torch.Tensor) -> torch.Tensor:
     height, width = image.shape[:2]
     cams = panorama_video.face_cameras(width, torch.zeros(3))
     faces = [equirect_to_perspective(image.permute(2, 0, 1), cam) for cam in cams]
-    dirs = panorama_video.band_directions(width, height, range(height), range(width))
-    dirs = dirs.reshape(-1, 3)
-    face = torch.argmax(dirs @ panorama_video.CUBE_AXES.T, dim=-1)
-    out = torch.zeros(3, height * width)
-    for f, (cam, pixels) in enumerate(zip(cams, faces, strict=True)):
-        on_face = face == f
-        out[:, on_face] = perspective_sampler(dirs[on_face], cam).apply(pixels)
-    return out.reshape(3, height, width).permute(1, 2, 0)
+    return panorama_video.faces_to_equirect(faces, cams, width, height)
 
 
 def mono_fidelity(

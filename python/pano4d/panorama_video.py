@@ -204,6 +204,14 @@ def mono_equirect(
     for cam in cams:
         faces.append(draw(spheres, cam, backend))
         on_piece()
+    return faces_to_equirect(faces, cams, width, height)
+
+
+def faces_to_equirect(
+    faces: list[torch.Tensor], cams: list[Camera], width: int, height: int
+) -> torch.Tensor:
+    """The equirect (H, W, 3) from the images (3, h, w) of ``face_cameras``' six cameras:
+    each pixel sampled from the face its direction falls on."""
     out = torch.zeros(3, height, width)
     rows_per_band = max(1, BAND_PIXELS // width)
     for r0 in range(0, height, rows_per_band):
