@@ -129,6 +129,7 @@ class TrainSettings:
         lambda_temporal: float,
         lambda_geo: float,
         background: tuple[float, ...] | Sequence[float],
+        antialiased: bool,
     ) -> None: ...
     @property
     def learning_rates(self) -> dict[str, float]: ...
@@ -146,6 +147,8 @@ class TrainSettings:
     def lambda_geo(self) -> float: ...
     @property
     def background(self) -> list[float]: ...
+    @property
+    def antialiased(self) -> bool: ...
 
 class ViewTarget:
     """One view's targets: rgb H·W·3, weight, depth H·W, previous H·W·3 (any shape with those

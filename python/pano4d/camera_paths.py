@@ -72,6 +72,13 @@ def scene_clock(scene: Path) -> tuple[int, float]:
     return 1, 1.0
 
 
+def scene_antialiased(scene: Path) -> bool:
+    """The rasteriser mode every render of ``scene`` uses: the .ply4d's (the mode it was
+    trained in); a plain .ply is classic, as every other tool draws it (``pano4d export``
+    bakes an antialiased scene's filter into the file it writes)."""
+    return scene.suffix == ".ply4d" and ply4d.open(scene).antialiased
+
+
 def timestamp_at(frame: int, video_fps: float, scene_fps: float, num_times: int) -> int:
     """The timestamp index that frame ``frame`` of a ``video_fps`` video shows: the scene
     plays at its own rate, looping, whatever the video's (a 30 fps video of an 8 fps scene
@@ -109,7 +116,8 @@ def to_image(rgb: torch.Tensor) -> np.ndarray:
 
 def render_still(scene: Path, camera: Camera, time: int, out: Path, backend: str = "wgpu") -> None:
     g, _ = load_gaussians(scene, time)
-    images.write_image(out, to_image(render(g, camera, backend=backend).rgb))
+    rgb = render(g, camera, backend=backend, antialiased=scene_antialiased(scene)).rgb
+    images.write_image(out, to_image(rgb))
 
 
 def turntable(
@@ -166,9 +174,13 @@ def render_path(
     """A video along a camera path; time follows the scene's own rate (``timestamp_at``)."""
     cams = path_cameras(kind, width, height, frames, path_radius(scene))
     shown = zip(gaussians_per_frame(scene, frames, fps), cams, strict=True)
+    antialiased = scene_antialiased(scene)
     images.write_video(
-        out, (to_image(render(g, cam, backend=backend).rgb) for g, cam in shown), fps
-    )
+        out,
+        (to_image(render(g, cam, backend=backend, antialiased=antialiased).rgb)
+         for g, cam in shown),
+        fps,
+    )  # fmt: skip
 
 
 def path_radius(scene: Path) -> float:

@@ -131,6 +131,11 @@ class OptimisationKnobs(BaseModel):
     # SH degree 0 (4× 3DGS: our runs are hundreds of steps); the higher degrees take
     # lr_color / 20, as in 3DGS
     lr_color: float = Field(1e-2, ge=0)
+    # Draw every Gaussian through the rasteriser's 2D filter with opacity compensation, in
+    # training and in every render of the scene (docs/rasterizer.md): a view of fewer
+    # pixels than the training views then shows what a supersampled render would, where
+    # the classic mode (false: 3DGS's dilation alone) aliases. The .ply4d records it.
+    antialiased: bool = True
 
 
 class StageKnobs(BaseModel):

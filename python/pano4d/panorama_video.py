@@ -130,10 +130,12 @@ class Frame360:
 # --- drawing ---------------------------------------------------------------------------------
 class GaussianSpheres:
     """A set of Gaussians with the bound of each one's reach (its 3σ sphere), worked
-    out once for the many pieces of a frame."""
+    out once for the many pieces of a frame, and the rasteriser mode they are drawn in (the
+    scene's, ``ply4d.Scene4D.antialiased``)."""
 
-    def __init__(self, g: Gaussians) -> None:
+    def __init__(self, g: Gaussians, antialiased: bool = False) -> None:
         self.g = g.detach().to("cpu")
+        self.antialiased = antialiased
         self.means = self.g.means.to(torch.float64)
         self.reach = 3.0 * self.g.log_scales.to(torch.float64).exp().amax(dim=-1)
 
@@ -161,7 +163,8 @@ def draw(spheres: GaussianSpheres, camera: Camera, backend: str) -> torch.Tensor
         for x0 in range(0, camera.width, PIECE_SIDE):
             h, w = min(PIECE_SIDE, camera.height - y0), min(PIECE_SIDE, camera.width - x0)
             window = camera.window(x0, y0, w, h)
-            rgb = render(spheres.reaching(window), window, backend=backend).rgb
+            seen = spheres.reaching(window)
+            rgb = render(seen, window, backend=backend, antialiased=spheres.antialiased).rgb
             image[:, y0 : y0 + h, x0 : x0 + w] = rgb.detach().cpu().permute(2, 0, 1)
     return image
 
@@ -330,11 +333,12 @@ def equirect_frame(
     eye: torch.Tensor,
     backend: str = "wgpu",
     on_piece: Callable[[], None] = lambda: None,
+    antialiased: bool = False,
 ) -> np.ndarray:
     """One 360° frame (H, W, 3) in [0, 1] seen from ``eye``: mono, or both eyes top-bottom
-    (left on top)."""
+    (left on top), drawn in the rasteriser mode ``antialiased`` says (the scene's)."""
     eye = torch.as_tensor(eye, dtype=torch.float64)
-    spheres = GaussianSpheres(g)
+    spheres = GaussianSpheres(g, antialiased)
     if not frame.stereo:
         rgb = mono_equirect(spheres, frame.width, frame.height, eye, backend, on_piece)
     else:
@@ -440,6 +444,7 @@ def render_360(
     if path is not None and not video:
         raise PanoramaArgumentError(f"--path makes a video: --out {out} must be an .mp4")
     count = (loop_frames(scene, fps) if frames is None else frames) if video else 1
+    antialiased = camera_paths.scene_antialiased(scene)
     eyes = eye_path(scene, path, count) if video else [viewpoint(scene)]
     if frame.stereo and frame.ipd is None:
         frame = replace(frame, ipd=default_ipd(camera_paths.load_gaussians(scene, 0)[0], eyes[0]))
@@ -447,13 +452,14 @@ def render_360(
                                               count * frame.pieces)  # fmt: skip
     if not video:
         g, _ = camera_paths.load_gaussians(scene, time)
-        images.write_image(out, equirect_frame(g, frame, eyes[0], backend, task.advance))
+        still = equirect_frame(g, frame, eyes[0], backend, task.advance, antialiased)
+        images.write_image(out, still)
         return frame
 
     def rendered() -> Iterator[np.ndarray]:
         shown = camera_paths.gaussians_per_frame(scene, count, fps)
         for g, eye in zip(shown, eyes, strict=True):
-            yield equirect_frame(g, frame, eye, backend, task.advance)
+            yield equirect_frame(g, frame, eye, backend, task.advance, antialiased)
 
     # Tagged before it takes its name: no reader sees an untagged 360° video.
     with atomic_path(out) as tmp:

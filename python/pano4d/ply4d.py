@@ -84,7 +84,9 @@ class Scene4D:
 
     ``camera`` is the source panorama's camera: ``{"position": [x, y, z], "params": {...}}``
     with free-form params; ``provenance`` holds ``tool_version`` and ``config_hash``;
-    ``extra`` is free-form. All three must be JSON-serialisable.
+    ``extra`` is free-form. All three must be JSON-serialisable. ``antialiased`` is the
+    rasteriser mode the scene was trained in, which every render of it must use
+    (docs/rasterizer.md); files written before the key existed read as classic (False).
     """
 
     static: Gaussians
@@ -94,6 +96,7 @@ class Scene4D:
     camera: dict[str, Any] = field(default_factory=_default_camera)
     provenance: dict[str, Any] = field(default_factory=_default_provenance)
     extra: dict[str, Any] = field(default_factory=dict)
+    antialiased: bool = False
 
     def __post_init__(self) -> None:
         if len(self.timestamps) != len(self.dynamic):
@@ -123,6 +126,7 @@ def _meta_json(
     camera: dict[str, Any],
     provenance: dict[str, Any],
     extra: dict[str, Any],
+    antialiased: bool,
 ) -> str:
     unknown = set(camera) - {"position", "params"}
     if unknown:
@@ -135,6 +139,7 @@ def _meta_json(
         "fps": float(fps),
         "camera": {"position": [float(v) for v in camera["position"]], "params": camera["params"]},
         "provenance": {**_default_provenance(), **provenance},
+        "antialiased": bool(antialiased),
         "extra": extra,
     }
     if not all(math.isfinite(v) for v in [*meta["timestamps"], meta["fps"]]):
@@ -179,9 +184,12 @@ class Ply4dWriter:
         camera: dict[str, Any] | None = None,
         provenance: dict[str, Any] | None = None,
         extra: dict[str, Any] | None = None,
+        antialiased: bool = False,
     ) -> None:
         """Write the file (atomically); ``timestamps`` has one entry per pushed set."""
-        self._finish(_meta_json(timestamps, fps, camera or {}, provenance or {}, extra or {}))
+        self._finish(
+            _meta_json(timestamps, fps, camera or {}, provenance or {}, extra or {}, antialiased)
+        )
 
     def _finish(self, meta_json: str) -> None:
         self._writer.finish(meta_json)
@@ -205,7 +213,9 @@ def write(path: PathLike, scene: Scene4D) -> None:
     """
     degree = max([scene.static.sh_degree] + [g.sh_degree for g in scene.dynamic])
     # Metadata is checked before any set is encoded.
-    meta = _meta_json(scene.timestamps, scene.fps, scene.camera, scene.provenance, scene.extra)
+    meta = _meta_json(
+        scene.timestamps, scene.fps, scene.camera, scene.provenance, scene.extra, scene.antialiased
+    )
     with Ply4dWriter(path, scene.static.with_sh_degree(degree)) as writer:
         for g in scene.dynamic:
             writer.push(g)
@@ -229,6 +239,11 @@ class Ply4dFile:
     @property
     def timestamps(self) -> list[float]:
         return list(self.header["timestamps"])
+
+    @property
+    def antialiased(self) -> bool:
+        """The mode every render of this scene must use (absent in older files: classic)."""
+        return bool(self.header.get("antialiased", False))
 
     def static(self) -> Gaussians:
         with _format_errors():
@@ -267,6 +282,7 @@ class Ply4dFile:
             camera=h["camera"],
             provenance=h["provenance"],
             extra=h["extra"],
+            antialiased=self.antialiased,
         )
 
 

@@ -68,6 +68,10 @@ pub struct SceneMeta {
     pub fps: f64,
     pub camera: CameraInfo,
     pub provenance: Provenance,
+    /// The rasteriser mode the scene was trained in and is drawn in (docs/rasterizer.md):
+    /// absent in files written before the key existed, which are classic.
+    #[serde(default)]
+    pub antialiased: bool,
     #[serde(default)]
     pub extra: serde_json::Value,
 }
@@ -685,6 +689,7 @@ mod tests {
                     tool_version: "0.1.0".into(),
                     config_hash: "abc".into(),
                 },
+                antialiased: true,
                 extra: serde_json::json!({"note": "test"}),
             },
         }

@@ -128,6 +128,7 @@ pub fn scene(
                 tool_version: format!("pano4d-view {} synthetic", env!("CARGO_PKG_VERSION")),
                 config_hash: format!("seed-{seed}"),
             },
+            antialiased: false,
             extra: serde_json::Value::Null,
         },
     }

@@ -146,6 +146,7 @@ def scene4d(
             },
         },
         provenance={"tool_version": __version__, "config_hash": config_hash(cfg)},
+        antialiased=inputs.knobs.antialiased,
         extra={
             "preset": cfg.preset,
             "knobs": inputs.knobs.model_dump(),

@@ -86,7 +86,10 @@ class LiftInputs:
     def render(self, g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> Any:
         from pano4d.renderer import render
 
-        return render(g, camera, background=background, backend=self.render_backend)
+        return render(
+            g, camera, background=background, backend=self.render_backend,
+            antialiased=self.knobs.antialiased,
+        )  # fmt: skip
 
     def moving_in_view(self, camera: Camera) -> torch.Tensor:
         """The moving region seen by ``camera``: (h, w) float in [0, 1]."""
@@ -576,10 +579,10 @@ def fit_dynamic(
             # The window holds t − 1's set too, so that outside it t − 1's render (L_temporal's
             # target) is the static render.
             drawn = dynamic if previous is None else Gaussians.cat([dynamic, previous])
-            backend = inputs.render_backend
-            reach = [reach_window(cameras[i], moving[i], drawn, backend) for i in seeing]
+            mode = (inputs.render_backend, inputs.knobs.antialiased)
+            reach = [reach_window(cameras[i], moving[i], drawn, *mode) for i in seeing]
             window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
-            static_drawn = static[touching(static, window_cameras, backend)]
+            static_drawn = static[touching(static, window_cameras, *mode)]
         if previous is not None and reach is not None:  # L_temporal's target: t − 1's render
             with torch.no_grad():
                 views.previous = previous_in_windows(

@@ -46,7 +46,7 @@ def train_settings(
 ) -> core.TrainSettings:
     """What the device's loop needs of ``knobs``, as ``pano4d._core.TrainSettings`` (the Rust
     ``TrainConfig``): learning rates per group, Adam's β and ε, the weights of L1, D-SSIM,
-    L_temporal and L_geo (L_sem runs on the host) and the background."""
+    L_temporal and L_geo (L_sem runs on the host), the background and the rasteriser's mode."""
     return core.TrainSettings(
         learning_rates=learning_rates(knobs),
         betas=ADAM_BETAS,
@@ -56,6 +56,7 @@ def train_settings(
         lambda_temporal=knobs.lambda_temporal,
         lambda_geo=knobs.lambda_geo,
         background=background,
+        antialiased=knobs.antialiased,
     )
 
 

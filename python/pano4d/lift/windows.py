@@ -79,16 +79,17 @@ class ViewWindow:
 
 
 def drawn_footprints(
-    g: Gaussians, camera: Camera, backend: str
+    g: Gaussians, camera: Camera, backend: str, antialiased: bool
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(N,) bool: the Gaussians whose footprint (with ``backend``'s rasteriser, grown by
+    """(N,) bool: the Gaussians whose footprint (with ``backend``'s rasteriser in the mode
+    ``antialiased`` says, grown by
     FOOTPRINT_MARGIN) reaches ``camera``'s image, and every Gaussian's centre (N, 2) and that
     grown radius (N,). The footprints are taken in the image grown by the margin on every
     side, so that the wgpu kernel's cull of what reaches no tile spares a Gaussian whose
     grown footprint reaches the image while its own does not."""
     m = FOOTPRINT_MARGIN
     grown = camera.window(-m, -m, camera.width + 2 * m, camera.height + 2 * m)
-    f = footprints(g, grown, backend)
+    f = footprints(g, grown, backend, antialiased)
     x, y, radius = f.centre[:, 0], f.centre[:, 1], f.radius
     drawn = (
         (radius >= 0)
@@ -98,17 +99,19 @@ def drawn_footprints(
     return drawn, f.centre - m, radius + m
 
 
-def touching(g: Gaussians, cameras: list[Camera], backend: str) -> torch.Tensor:
+def touching(
+    g: Gaussians, cameras: list[Camera], backend: str, antialiased: bool
+) -> torch.Tensor:
     """(N,) bool: the Gaussians that can draw into some camera's image with ``backend``'s
-    rasteriser."""
+    rasteriser in that mode."""
     keep = torch.zeros(len(g), dtype=torch.bool, device=g.device)
     for camera in cameras:
-        keep |= drawn_footprints(g, camera, backend)[0]
+        keep |= drawn_footprints(g, camera, backend, antialiased)[0]
     return keep
 
 
 def reach_window(
-    camera: Camera, moving: torch.Tensor, dynamic: Gaussians, backend: str
+    camera: Camera, moving: torch.Tensor, dynamic: Gaussians, backend: str, antialiased: bool
 ) -> ViewWindow:
     """The window of ``camera``'s view that a step must render: the bounding box of the
     pixels the moving region (``moving``: (h, w), > 0 where the view sees it) or the dynamic
@@ -118,7 +121,7 @@ def reach_window(
     lo = [float(xs.min()), float(ys.min())] if len(xs) else [math.inf, math.inf]
     hi = [float(xs.max()) + 1, float(ys.max()) + 1] if len(xs) else [-math.inf, -math.inf]
     if len(dynamic):
-        drawn, centre, radius = drawn_footprints(dynamic, camera, backend)
+        drawn, centre, radius = drawn_footprints(dynamic, camera, backend, antialiased)
         if bool(drawn.any()):
             c, r = centre[drawn].double(), radius[drawn].double()
             lo = [min(lo[i], float((c[:, i] - r).min())) for i in (0, 1)]

@@ -35,7 +35,8 @@ const GROUP_NAMES: [&str; GROUPS] = [
 ];
 
 /// What a training session is configured with: Adam's learning rates (by group name), β
-/// and ε, the weights of the device's losses and the background. Built by keyword only, read
+/// and ε, the weights of the device's losses, the background and the rasteriser's mode
+/// (`antialiased`: the 2D filter with opacity compensation, docs/rasterizer.md). Built by keyword only, read
 /// back by name (`TrainSession.settings` returns the session's own).
 #[pyclass(name = "TrainSettings", module = "pano4d._core", frozen)]
 #[derive(Clone)]
@@ -47,9 +48,10 @@ pub struct PyTrainSettings {
 impl PyTrainSettings {
     /// `learning_rates`: {group: rate} for exactly the groups offsets, log_scales, quats,
     /// opacity_logits, sh_dc, sh_rest; `lambda_l1`, `lambda_ssim`, `lambda_temporal`,
-    /// `lambda_geo`: the weights of L1, D-SSIM, L_temporal and L_geo.
+    /// `lambda_geo`: the weights of L1, D-SSIM, L_temporal and L_geo; `antialiased`: the
+    /// mode every render of the session draws in.
     #[new]
-    #[pyo3(signature = (*, learning_rates, betas, eps, lambda_l1, lambda_ssim, lambda_temporal, lambda_geo, background))]
+    #[pyo3(signature = (*, learning_rates, betas, eps, lambda_l1, lambda_ssim, lambda_temporal, lambda_geo, background, antialiased))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         learning_rates: BTreeMap<String, f64>,
@@ -60,6 +62,7 @@ impl PyTrainSettings {
         lambda_temporal: f32,
         lambda_geo: f32,
         background: [f32; 3],
+        antialiased: bool,
     ) -> PyResult<Self> {
         let unknown: Vec<&str> = learning_rates
             .keys()
@@ -92,6 +95,7 @@ impl PyTrainSettings {
                 },
                 settings: RenderSettings {
                     background,
+                    antialiased,
                     ..Default::default()
                 },
             },
@@ -141,11 +145,17 @@ impl PyTrainSettings {
         self.config.settings.background
     }
 
+    #[getter]
+    fn antialiased(&self) -> bool {
+        self.config.settings.antialiased
+    }
+
     fn __repr__(&self) -> String {
         let c = &self.config;
         format!(
             "TrainSettings(learning_rates={:?}, betas=({}, {}), eps={}, lambda_l1={}, \
-             lambda_ssim={}, lambda_temporal={}, lambda_geo={}, background={:?})",
+             lambda_ssim={}, lambda_temporal={}, lambda_geo={}, background={:?}, \
+             antialiased={})",
             self.learning_rates(),
             c.adam.beta1,
             c.adam.beta2,
@@ -154,7 +164,8 @@ impl PyTrainSettings {
             c.losses.ssim,
             c.losses.temporal,
             c.losses.geo,
-            c.settings.background
+            c.settings.background,
+            if c.settings.antialiased { "True" } else { "False" }
         )
     }
 }
