@@ -240,7 +240,8 @@ def region_psnr(
             hits = world.cast(cam.position.to(torch.float32), cam.world_directions().reshape(-1, 3))
             moves = world.moves(hits.label).view(CAMERA_SIZE, CAMERA_SIZE)
             with torch.no_grad():
-                rgb = render(scene.at(t), cam).rgb.clamp(0, 1).cpu()
+                drawn = render(scene.at(t), cam, antialiased=scene.antialiased)
+                rgb = drawn.rgb.clamp(0, 1).cpu()
             if moves.any():
                 values.append(psnr(rgb[moves], truth[moves]))
             if not moves.all():

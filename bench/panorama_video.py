@@ -212,9 +212,11 @@ def stereo_video(scene: Path, out: Path) -> dict[str, Any]:
 
 
 def exports(scene: Path, folder: Path) -> list[dict[str, Any]]:
-    truth = ply4d.open(scene).at(0)
+    source = ply4d.open(scene)
+    truth = source.at(0)
     cams = sphere.view_layout(8, 70.0, 512)
-    wanted = [render(truth, cam).rgb for cam in cams]
+    # Ours in the scene's mode; the exports as other viewers draw them, classic.
+    wanted = [render(truth, cam, antialiased=source.antialiased).rgb for cam in cams]
     rows = []
     for fmt in ("ply", "compressed-ply", "spz", "sog", "splat"):
         out = folder / f"t0{SUFFIX[fmt]}"

@@ -198,6 +198,8 @@ def run_ours(views: Path, steps: int, densify: bool, out: Path, knobs_json: str)
         iterations=steps, lambda_geo=preset["lambda_geo"], densify=densify,
         max_gaussians=preset["max_gaussians"], densify_every=max(10, steps // 10),
         sem_scale=data["pano4d"]["median_depth"],
+        # Classic, as OpenSplat trains and as both tools' .ply files are drawn here.
+        antialiased=False,
     )  # fmt: skip
     initial = ply4d.read_ply(views / "ours_initial.ply")
     trainer = ResidentTrainer(initial, train_views, knobs)  # it renders on the device

@@ -78,7 +78,8 @@ def flicker(scene: ply4d.Scene4D, frames: list[np.ndarray], mask: np.ndarray, ba
         for cam in cams:
             inside = equirect_to_perspective(torch.from_numpy(mask).float(), cam) > 0.5
             renders = [
-                render(scene.at(t), cam, backend=backend).rgb for t in range(scene.num_times)
+                render(scene.at(t), cam, backend=backend, antialiased=scene.antialiased).rgb
+                for t in range(scene.num_times)
             ]
             gts = [
                 equirect_to_perspective(torch.from_numpy(f).permute(2, 0, 1), cam).permute(1, 2, 0)
@@ -136,7 +137,7 @@ def bench_preset(preset: str, args: argparse.Namespace) -> dict:
 
         maps = analyse(
             root, output, int(metrics["working_size"][0]),
-            lambda g, c: render(g, c, backend=args.backend),
+            lambda g, c: render(g, c, backend=args.backend, antialiased=scene.antialiased),
         )  # fmt: skip
     return {
         "preset": preset,

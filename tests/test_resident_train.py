@@ -7,6 +7,7 @@ All on the wgpu backend (lavapipe in CI)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -30,8 +31,11 @@ from pano4d.renderer import MIN_ALPHA_FOR_DEPTH, RenderOutput, render
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def _render(g: Gaussians, camera: Camera, background: Any = None) -> RenderOutput:
-    return render(g, camera, background=background, backend="wgpu")
+def _render(
+    g: Gaussians, camera: Camera, background: Any = None, antialiased: bool = True
+) -> RenderOutput:
+    """The torch trainer's rasteriser, in the knobs' default mode (antialiased) unless told."""
+    return render(g, camera, background=background, backend="wgpu", antialiased=antialiased)
 
 
 # The default knobs' L_rgb mix: (1 − λ_dssim) L1 + λ_dssim D-SSIM.
@@ -98,7 +102,7 @@ def _session(views: TrainViews, lambdas: tuple[float, float, float, float]) -> A
     settings = core.TrainSettings(
         learning_rates=defaults.learning_rates, betas=defaults.betas, eps=defaults.eps,
         lambda_l1=l1, lambda_ssim=ssim, lambda_temporal=temporal, lambda_geo=geo,
-        background=defaults.background,
+        background=defaults.background, antialiased=defaults.antialiased,
     )  # fmt: skip
     return core.TrainSession(
         static_set=gaussian_arrays(Gaussians.empty(0)),
@@ -133,8 +137,12 @@ def _assert_close(device: torch.Tensor, reference: torch.Tensor, what: str) -> N
     assert scale > 0, f"{what}: the reference gradient is zero, the case tests nothing"
     torch.testing.assert_close(device, reference, rtol=0, atol=1e-5 * scale, msg=what)
     # The borders: the reflect padding's mirrored taps land on the outer 5 pixels.
-    for region in (device[:5] - reference[:5], device[-5:] - reference[-5:],
-                   device[:, :5] - reference[:, :5], device[:, -5:] - reference[:, -5:]):
+    for region in (
+        device[:5] - reference[:5],
+        device[-5:] - reference[-5:],
+        device[:, :5] - reference[:, :5],
+        device[:, -5:] - reference[:, -5:],
+    ):
         assert float(region.abs().max()) <= 1e-5 * scale, f"{what}: border"  # fmt: skip
 
 
@@ -228,7 +236,7 @@ def test_adam_matches_torch_adam_with_the_trainers_groups() -> None:
         grads = _gaussians(n_all, 1, seed=10 + step).map(lambda t, s=scale: t * s)
         grads.opacity_logits[len(static)] = 0.0  # a zero gradient: moments decay, no NaN
         resident._session.apply_gradients(gaussian_arrays(grads))
-        g = grads[len(static):]
+        g = grads[len(static) :]
         p = reference.params
         p["offsets"].grad = g.means * reference.unit[:, None]  # autograd's d/d offsets
         norms += screen_gradient(p["offsets"].grad, reference.result().means)
@@ -305,8 +313,11 @@ def _with_static(g: Gaussians) -> tuple[Gaussians, Gaussians]:
                      cap.sh), static  # fmt: skip
 
 
+@pytest.mark.parametrize("antialiased", [True, False], ids=["antialiased", "classic"])
 @pytest.mark.parametrize("with_static", [False, True], ids=["alone", "frozen static set"])
-def test_resident_trainer_follows_the_torch_trainer_for_k_steps(with_static: bool) -> None:
+def test_resident_trainer_follows_the_torch_trainer_for_k_steps(
+    with_static: bool, antialiased: bool
+) -> None:
     """K = 20 steps of both trainers from one start on the same views (same seed), every
     loss term on. Both render with the same wgpu kernels; what differs is float32 summation
     order in the losses (the device's separable tree sums against kornia's convolutions and
@@ -325,12 +336,15 @@ def test_resident_trainer_follows_the_torch_trainer_for_k_steps(with_static: boo
     is off there: its L1 against the previous render changes sign where the two meet, and
     with the static set one Gaussian meets it so closely that the trainers' rounding sends
     its mean apart by 0.016 in 20 steps (with this extension or the one before the frozen
-    static set was skipped alike); every other term agrees to 2e-5."""
+    static set was skipped alike); every other term agrees to 2e-5. Both rasteriser modes:
+    the device's session draws in the knobs' mode, the torch trainer in the one given to its
+    render function."""
     g, views = _problem(view_size=48 if with_static else 24)  # tiles of the static set alone
     g, static = _with_static(g) if with_static else (g, None)
     knobs = Knobs(iterations=STEPS, lambda_temporal=0.0 if with_static else 0.1,
-                  lambda_geo=0.05)  # fmt: skip
-    expected = GaussianTrainer(g, views, knobs, _render, static=static, seed=3).run()
+                  lambda_geo=0.05, antialiased=antialiased)  # fmt: skip
+    draw = functools.partial(_render, antialiased=antialiased)
+    expected = GaussianTrainer(g, views, knobs, draw, static=static, seed=3).run()
     resident = ResidentTrainer(g, views, knobs, static=static, seed=3)
     got = resident.run()
     assert resident.step == STEPS and math.isfinite(resident.last_loss)
@@ -416,9 +430,7 @@ def test_densification_keeps_the_invariants_and_carries_the_moments(kind: str) -
     unit, accum, count = _statistics(trainer)
     generator = torch.Generator()
     generator.set_state(trainer.generator.get_state())
-    decision = split_and_prune(
-        before, unit, accum, count, knobs, generator, trainer.step
-    )
+    decision = split_and_prune(before, unit, accum, count, knobs, generator, trainer.step)
     trainer.densify_and_prune()
     assert trainer.last_densify == decision.stats  # what the run's diagnosis records
     after, carried = trainer.result(), _moments(trainer)
@@ -526,7 +538,7 @@ def test_scene_yaml_overrides_reach_the_device_session(tmp_path: Any) -> None:
 
 def _settings_kwargs(settings: Any) -> dict[str, Any]:
     names = ("learning_rates", "betas", "eps", "lambda_l1", "lambda_ssim", "lambda_temporal",
-             "lambda_geo", "background")  # fmt: skip
+             "lambda_geo", "background", "antialiased")  # fmt: skip
     return {name: getattr(settings, name) for name in names}
 
 

@@ -25,10 +25,17 @@ from pano4d.lift.windows import (
     touching,
     windowed,
 )
-from pano4d.renderer import render
+from pano4d.renderer import RenderOutput, render
 
 W, H = 160, 96
 KNOBS = Knobs(iterations=10, lambda_temporal=0.1, lambda_geo=0.05)
+# The windows' footprints and every render here in the knobs' rasteriser mode (the default,
+# antialiased), as the pipeline draws them.
+MODE = ("wgpu", KNOBS.antialiased)
+
+
+def draw(g: Gaussians, camera: Camera, background: torch.Tensor | None = None) -> RenderOutput:
+    return render(g, camera, background=background, antialiased=KNOBS.antialiased)
 
 
 def cloud(seed: int, n: int, centre: list[float], spread: float, scale: float) -> Gaussians:
@@ -50,16 +57,16 @@ def scene() -> dict[str, object]:
     camera = Camera.from_fov(70.0, W, H)
     static = cloud(0, 500, [5.0, 0.0, 0.0], 2.0, 0.08)
     dynamic = cloud(1, 40, [5.0, 1.6, 0.5], 0.1, 0.02)
-    full = render(Gaussians.cat([static, dynamic]), camera).rgb
+    full = draw(Gaussians.cat([static, dynamic]), camera).rgb
     gen = torch.Generator().manual_seed(2)
     target = (full + 0.1 * torch.rand(H, W, 3, generator=gen)).clamp(0, 1)
     previous = full + 0.05 * torch.randn(H, W, 3, generator=gen)
     depth = 4.0 + torch.rand(H, W, generator=gen)
     views = TrainViews([camera], target[None], torch.ones(1, H, W), depth[None], previous[None])
-    window = reach_window(camera, torch.zeros(H, W), dynamic, "wgpu")
-    s = render(static, camera)
+    window = reach_window(camera, torch.zeros(H, W), dynamic, *MODE)
+    s = draw(static, camera)
     windows = windowed(views, [window], [s])
-    static_drawn = static[touching(static, windows.cameras, "wgpu")]
+    static_drawn = static[touching(static, windows.cameras, *MODE)]
     return {
         "camera": camera, "static": static, "dynamic": dynamic, "views": views,
         "window": window, "windows": windows, "static_drawn": static_drawn,
@@ -73,8 +80,8 @@ def test_the_window_and_the_static_set_follow_the_dynamic_set(scene: dict) -> No
     assert 0 < len(static_drawn) < 0.9 * len(static)
     # Every static Gaussian left out draws nothing into the window.
     camera = scene["windows"].cameras[0]
-    dropped = static[~touching(static, [camera], "wgpu")]
-    assert float(render(dropped, camera).alpha.max()) == 0.0
+    dropped = static[~touching(static, [camera], *MODE)]
+    assert float(draw(dropped, camera).alpha.max()) == 0.0
 
 
 def test_the_previous_frame_renders_only_its_window(scene: dict) -> None:
@@ -85,20 +92,18 @@ def test_the_previous_frame_renders_only_its_window(scene: dict) -> None:
     dynamic: Gaussians = scene["dynamic"]
     gen = torch.Generator().manual_seed(4)
     previous = replace(dynamic, sh=torch.randn(dynamic.sh.shape, generator=gen))
-    whole = render(Gaussians.cat([static, previous]), camera).rgb
+    whole = draw(Gaussians.cat([static, previous]), camera).rgb
     pasted = previous_in_windows(
-        render, [window], [camera], [render(static, camera)], scene["static_drawn"], previous
+        draw, [window], [camera], [draw(static, camera)], scene["static_drawn"], previous
     )[0]
     assert window.share(camera) < 0.7
-    assert float((whole - render(static, camera).rgb).abs().max()) > 0.1  # previous shows
+    assert float((whole - draw(static, camera).rgb).abs().max()) > 0.1  # previous shows
     assert torch.allclose(pasted, whole, rtol=0, atol=1e-5)
 
 
 def trainer(kind: str, views: TrainViews, static: Gaussians, dynamic: Gaussians) -> Trainer:
     if kind == "torch":
-        return GaussianTrainer(
-            dynamic, views, KNOBS, lambda g, c, b: render(g, c, background=b), static, seed=3
-        )
+        return GaussianTrainer(dynamic, views, KNOBS, draw, static, seed=3)
     return ResidentTrainer(dynamic, views, KNOBS, static=static, seed=3)
 
 
@@ -151,7 +156,7 @@ def test_the_pixel_gradient_is_the_whole_views_where_the_set_can_draw(scene: dic
     gradients = []
     for views, cam in [(scene["views"], camera), (scene["windows"], window.camera(camera))]:
         t = ResidentTrainer(scene["dynamic"], views, KNOBS, static=scene["static"])
-        out = render(scene_all, cam)
+        out = draw(scene_all, cam)
         pixels = torch.cat([out.rgb, out.alpha[..., None], (out.depth * out.alpha)[..., None]], -1)
         gradient = t._session.loss_gradient(0, pixels.reshape(-1).numpy()).pixel_gradient
         gradients.append(torch.from_numpy(gradient).reshape(cam.height, cam.width, 5))
