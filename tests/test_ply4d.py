@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
 import zlib
@@ -14,6 +15,7 @@ import torch
 
 from pano4d import ply4d
 from pano4d.gaussians import Gaussians, sh_coeffs_for_degree
+from pano4d.share_formats import bake_antialiasing
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 TRAIN = DATA / "gs_train1000.ply"
@@ -228,6 +230,22 @@ def test_export_is_a_plain_ply_of_at_t(tmp_path: Path) -> None:
     ply4d.export(path, 1, out)
     assert_bit_equal(ply4d.read_ply(out), scene.at(1))
     assert out.read_bytes()[:4] == b"ply\n"
+
+
+def test_export_of_an_antialiased_scene_is_baked_for_classic_viewers(tmp_path: Path) -> None:
+    """Not the stored bytes: the set baked at the training views (share_formats), the
+    extreme rows (a mean at 3·10³⁸, an infinite opacity) included."""
+    scene = make_scene(3, [2, 7])
+    scene.antialiased = True
+    scene.camera = {"position": [0.5, -1.0, 2.0], "params": {"fov_deg": 80.0, "view_size": 512}}
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    out = tmp_path / "t1.ply"
+    ply4d.export(path, 1, out)
+    focal = 512 / (2 * math.tan(math.radians(40.0)))
+    baked = bake_antialiasing(scene.at(1), [0.5, -1.0, 2.0], focal)
+    assert_bit_equal(ply4d.read_ply(out), baked)
+    assert not torch.equal(baked.opacity_logits, scene.at(1).opacity_logits)
 
 
 def test_ply4d_layout_matches_spec(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 import threading
+import types
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from pano4d import ply4d, web
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians, rgb_to_sh_dc
 from pano4d.renderer import render
+from pano4d.share_formats import for_classic_viewers
 
 WIDTH, HEIGHT = 640, 360
 # SwiftShader's splats against pano4d's rasteriser, SH-0 colour, measured 2026-11-24: see
@@ -229,3 +231,52 @@ def test_web_refuses_a_damaged_scene_before_writing(scene_file: Path, tmp_path: 
         assert str(path) in line, line
         assert not out.exists()
         assert [p.name for p in tmp_path.iterdir() if p.name.startswith(f".{name}")] == []
+
+
+class RecordingScene:
+    """The part of a viser server's ``scene`` that ``web.add_scene`` uses, keeping the
+    arrays of each set it is sent."""
+
+    def __init__(self) -> None:
+        self.sent: dict[str, web.SplatArrays] = {}
+
+    def set_up_direction(self, direction: str) -> None:
+        pass
+
+    def add_gaussian_splats(
+        self, name: str, centers: np.ndarray, covariances: np.ndarray, rgbs: np.ndarray,
+        opacities: np.ndarray, visible: bool,
+    ) -> str:  # fmt: skip
+        self.sent[name] = web.SplatArrays(centers, covariances, rgbs, opacities)
+        return name
+
+
+def sent_to_viser(path: Path) -> dict[str, web.SplatArrays]:
+    server = types.SimpleNamespace(scene=RecordingScene())
+    web.add_scene(server, ply4d.open(path), lambda: None)
+    return server.scene.sent
+
+
+def assert_same_arrays(a: web.SplatArrays, b: web.SplatArrays) -> None:
+    for name in ("centers", "covariances", "rgbs", "opacities"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_viser_gets_an_antialiased_scene_baked(scene_file: Path, tmp_path: Path) -> None:
+    """viser draws classic: a classic scene's sets go as stored, an antialiased one's baked
+    at its training views (the same sets `pano4d export` writes)."""
+    classic = ply4d.open(scene_file)
+    sets = {"/static": classic.static(), "/dynamic/t0000": classic.dynamic(0),
+            "/dynamic/t0001": classic.dynamic(1)}  # fmt: skip
+    sent = sent_to_viser(scene_file)
+    for name, g in sets.items():
+        assert_same_arrays(sent[name], web.splat_arrays(g))
+    scene = tiny_scene()  # the same sets, trained antialiased
+    scene.antialiased = True
+    scene.camera = {"position": [0.0, 0.0, 0.0], "params": {"fov_deg": 80.0, "view_size": 512}}
+    path = tmp_path / "antialiased.ply4d"
+    ply4d.write(path, scene)
+    sent = sent_to_viser(path)
+    for name, g in sets.items():
+        assert_same_arrays(sent[name], web.splat_arrays(for_classic_viewers(g, ply4d.open(path))))
+        assert (sent[name].opacities < web.splat_arrays(g).opacities).any(), name

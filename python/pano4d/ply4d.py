@@ -266,8 +266,16 @@ class Ply4dFile:
             self._reader.verify()
 
     def export(self, t: int, path_out: PathLike) -> None:
-        """Write timestamp ``t`` (static + dynamic) as a plain 3DGS ``.ply``."""
+        """Write timestamp ``t`` (static + dynamic) as a plain 3DGS ``.ply``: a classic
+        scene's stored values copied byte for byte, an antialiased one's decoded and baked
+        for the classic viewers that read the file (``share_formats.for_classic_viewers``)."""
         _check_time(t, self.num_times)
+        if self.antialiased:
+            # Imported here: share_formats builds on this module.
+            from pano4d.share_formats import for_classic_viewers
+
+            write_ply(path_out, for_classic_viewers(self.at(t), self))
+            return
         with _format_errors():
             self._reader.export_ply(t, os.fspath(path_out))
 
@@ -297,5 +305,6 @@ def read(path: PathLike) -> Scene4D:
 
 
 def export(path_in: PathLike, t: int, path_out: PathLike) -> None:
-    """Write timestamp ``t`` of a ``.ply4d`` (static + dynamic) as a plain 3DGS ``.ply``."""
+    """Write timestamp ``t`` of a ``.ply4d`` (static + dynamic) as a plain 3DGS ``.ply``
+    (``Ply4dFile.export``: an antialiased scene's baked for classic viewers)."""
     Ply4dFile(path_in).export(t, path_out)

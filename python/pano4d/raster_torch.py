@@ -90,6 +90,13 @@ class Projected:
     index: torch.Tensor  # (M,) int64: each one's row in the Gaussians
 
 
+def covariance_factor(log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
+    """M (N, 3, 3) with the world covariance R S² Rᵀ = M Mᵀ, M = R S: log-scales clamped
+    to [MIN_LOG_SCALE, MAX_LOG_SCALE], raw quaternions turned as ``quat_to_rotation`` does."""
+    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
+    return quat_to_rotation(quats) * scales[:, None, :]
+
+
 def ewa_covariance(
     t: torch.Tensor, rz: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
     camera: Camera,
@@ -108,10 +115,20 @@ def ewa_covariance(
         camera.fx * rz, zero, -camera.fx * u * rz,
         zero, camera.fy * rz, -camera.fy * v * rz,
     ], dim=-1).reshape(-1, 2, 3)
-    scales = torch.exp(torch.clamp(log_scales, MIN_LOG_SCALE, MAX_LOG_SCALE))
-    M = quat_to_rotation(quats) * scales[:, None, :]
-    T = J @ W @ M
+    T = J @ W @ covariance_factor(log_scales, quats)
     return T @ T.transpose(1, 2)
+
+
+def antialiasing_factor(det: torch.Tensor, det_filtered: torch.Tensor) -> torch.Tensor:
+    """The antialiased mode's opacity factor sqrt(det Σ / det(Σ + LOW_PASS·I)) from those
+    two determinants of 2D covariances Σ in pixels²: 0 where either is not positive and
+    finite (a footprint with no area, which the mode does not draw)."""
+    usable = (det > 0) & (det_filtered > 0) & torch.isfinite(det) & torch.isfinite(det_filtered)
+    # Both masked before the division, so that no NaN/Inf enters the autograd graph.
+    ratio = torch.where(usable, det, torch.ones_like(det)) / torch.where(
+        usable, det_filtered, torch.ones_like(det_filtered)
+    )
+    return torch.where(usable, torch.sqrt(ratio), torch.zeros_like(ratio))
 
 
 def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype) -> Projected:
@@ -140,9 +157,8 @@ def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype)
     det1 = torch.where(visible, det1, torch.ones_like(det1))
     opacity = torch.sigmoid(logits)
     if antialiased:
-        positive = visible & (det0 > 0)
-        ratio = torch.where(positive, det0, torch.ones_like(det0)) / det1
-        opacity = opacity * torch.where(positive, torch.sqrt(ratio), torch.zeros_like(ratio))
+        factor = antialiasing_factor(det0, det1)
+        opacity = opacity * torch.where(visible, factor, torch.zeros_like(factor))
     visible = visible & (opacity >= ALPHA_MIN)
 
     offset = means - camera.position.to(device=device, dtype=dtype)

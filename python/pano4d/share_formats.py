@@ -7,14 +7,20 @@ gaussforge from our arrays. gaussforge writes every format at SH degree 0, but r
 read (and so to convert) an SH-0 .ply, which every draft scene is: so nothing goes through
 a .ply on the way. A 4D scene is shared as a folder of ``frame_0000.<ext>``…, the numbered
 sequence SuperSplat's timeline plays.
+
+Every other viewer draws classic (docs/rasterizer.md): the 0.3 px² low-pass without the
+antialiased mode's opacity compensation. A scene trained antialiased is therefore handed to
+them with that compensation baked into its opacities (``for_classic_viewers``): here, in
+``ply4d.Ply4dFile.export`` and in ``pano4d serve``/``web`` (``web.add_scene``).
 """
 
 from __future__ import annotations
 
 import errno
+import math
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +31,7 @@ from pano4d import ply4d
 from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 from pano4d.gaussians import Gaussians
+from pano4d.raster_torch import LOW_PASS, NEAR_PLANE, antialiasing_factor, covariance_factor
 
 
 @dataclass(frozen=True)
@@ -81,6 +88,95 @@ def morton_codes(points: np.ndarray) -> np.ndarray:
         for axis in range(3):
             code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
     return code
+
+
+def bake_antialiasing(g: Gaussians, viewpoint: Sequence[float], focal_px: float) -> Gaussians:
+    """``g``, trained in the antialiased mode, with that mode's opacity factor baked in: a
+    classic rasteriser draws the result as the antialiased one draws ``g`` from
+    ``viewpoint`` at a focal length of ``focal_px`` pixels. Only opacities change.
+
+    The factor sqrt(det Σ2D / det(Σ2D + LOW_PASS·I)) depends on the view. Σ2D is taken here
+    as (f/d)²·P Σ Pᵀ: the 3D covariance Σ projected onto an orthonormal pair P across the
+    line of sight from ``viewpoint`` (distance d), which is exactly what a pinhole camera
+    there sees of a Gaussian at its image centre. Towards a pinhole image's edges the
+    pixels grow denser (by 1/cos³ of the angle off the axis, in area), and from elsewhere
+    the factor differs again: there the bake is approximate.
+
+    A Gaussian with a non-finite parameter (which every pano4d render culls) or nearer
+    ``viewpoint`` than NEAR_PLANE (which no camera there draws) is kept as it is; one whose
+    footprint has no area (det Σ2D ≤ 0: the antialiased mode draws nothing of it) becomes
+    transparent.
+    """
+    if not (math.isfinite(focal_px) and focal_px > 0):
+        raise ValueError(f"focal_px must be finite and positive, got {focal_px}")
+    origin = torch.as_tensor(viewpoint, dtype=torch.float64, device=g.device)
+    if origin.shape != (3,) or not torch.isfinite(origin).all():
+        raise ValueError(f"viewpoint must be three finite numbers, got {viewpoint}")
+    means, log_scales, quats, logits = (
+        t.to(torch.float64) for t in (g.means, g.log_scales, g.quats, g.opacity_logits)
+    )
+    finite = torch.stack(
+        [torch.isfinite(t.reshape(len(g), -1)).all(-1) for t in g.tensors().values()], dim=-1
+    ).all(-1)
+    offset = means - origin
+    distance = torch.linalg.norm(offset, dim=-1)
+    baked = finite & (distance >= NEAR_PLANE)
+    # The rows not baked may hold NaN from here on: the last line keeps their logits.
+    sight = offset / distance[:, None]
+    # Any orthonormal pair across the line of sight will do: the factor depends only on
+    # Σ2D's determinant and trace. The helper axis is one far from the line of sight.
+    z_axis, x_axis = torch.eye(3, dtype=torch.float64, device=g.device)[[2, 0]]
+    helper = torch.where(sight[:, 2:].abs() < 0.9, z_axis, x_axis)
+    across = torch.nn.functional.normalize(torch.linalg.cross(sight, helper), dim=-1)
+    P = torch.stack([across, torch.linalg.cross(sight, across)], dim=1)  # (N, 2, 3)
+    T = (focal_px / distance)[:, None, None] * (P @ covariance_factor(log_scales, quats))
+    cov2d = T @ T.transpose(1, 2)
+    a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
+    factor = antialiasing_factor(a * c - b * b, (a + LOW_PASS) * (c + LOW_PASS) - b * b)
+    # logit(σ(o)·k) = log k + log σ(o) − log(1 − k·σ(o)), with 1 − k·σ(o) written as
+    # (1 − k) + k·σ(−o), which stays accurate for an opaque Gaussian (σ(o) → 1). The
+    # factor is at most 1: the minimum with o only catches 1 − k·σ(o) rounding to 0.
+    k = torch.where(factor > 0, factor, torch.ones_like(factor))
+    compensated = torch.minimum(
+        torch.log(k)
+        + torch.nn.functional.logsigmoid(logits)
+        - torch.log((1 - k) + k * torch.sigmoid(-logits)),
+        logits,
+    )
+    compensated = torch.where(factor > 0, compensated, torch.full_like(k, TRANSPARENT_LOGIT))
+    new_logits = torch.where(baked, compensated.to(g.opacity_logits), g.opacity_logits)
+    return Gaussians(g.means, g.log_scales, g.quats, new_logits, g.sh)
+
+
+def for_classic_viewers(g: Gaussians, scene: ply4d.Ply4dFile) -> Gaussians:
+    """``g``, a set of ``scene``, as a viewer that draws classic must receive it: unchanged
+    for a classic scene; for an antialiased one, baked (``bake_antialiasing``) at its
+    training views' pixel density, from the panorama's position they all look out from."""
+    if not scene.antialiased:
+        return g
+    camera = scene.header.get("camera", {})
+    params = camera.get("params", {})
+    try:
+        viewpoint = [float(v) for v in camera["position"]]
+        fov_deg, view_size = float(params["fov_deg"]), float(params["view_size"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise ply4d.FormatError(
+            f"{scene.path}: an antialiased scene needs camera.position and camera.params "
+            f"fov_deg and view_size (its training views) to be drawn by other viewers; "
+            f"got camera {camera}"
+        ) from e
+    if not (
+        0 < fov_deg < 180
+        and 0 < view_size < math.inf
+        and len(viewpoint) == 3
+        and all(math.isfinite(v) for v in viewpoint)
+    ):
+        raise ply4d.FormatError(
+            f"{scene.path}: camera.params fov_deg {fov_deg} and view_size {view_size} (or "
+            f"camera.position {viewpoint}) are not a training view's"
+        )
+    focal_px = view_size / (2 * math.tan(math.radians(fov_deg) / 2))
+    return bake_antialiasing(g, viewpoint, focal_px)
 
 
 def compressed_ply_chunks(g: Gaussians) -> Gaussians:
@@ -178,7 +274,7 @@ def export(
     fmt = check_format(fmt_name if fmt_name is not None else format_of(out))
     source = ply4d.open(scene)
     if not sequence:
-        write(source.at(0 if time is None else time), out, fmt)
+        write(for_classic_viewers(source.at(0 if time is None else time), source), out, fmt)
         on_time()
         return [out]
     if out.exists() and not (out.is_dir() and not any(out.iterdir())):
@@ -190,7 +286,7 @@ def export(
         tmp.chmod(0o755)  # mkdtemp's 0700 would hide the frames from a web server's user
         names = [f"frame_{t:04d}{fmt.suffix}" for t in range(source.num_times)]
         for t, name in enumerate(names):
-            write(source.at(t), tmp / name, fmt)
+            write(for_classic_viewers(source.at(t), source), tmp / name, fmt)
             on_time()
         if out.exists():
             out.rmdir()

@@ -13,7 +13,9 @@ play it in viser's prebuilt web client, which ships inside the viser wheel (no N
   (``playbackPath``, ``initialCameraPosition``/``LookAt``/``Up``/``Fov``).
 
 viser's splats carry one colour per Gaussian, so both show the view-independent colour: the
-SH degree-0 term (``0.5 + C0 · dc``, clamped to [0, 1]); higher SH bands are dropped.
+SH degree-0 term (``0.5 + C0 · dc``, clamped to [0, 1]); higher SH bands are dropped. viser
+draws classic (the 0.3 px² low-pass, no compensation): an antialiased scene's sets are sent
+baked for it (``share_formats.for_classic_viewers``).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from pano4d.camera_paths import DEFAULT_FOV_DEG, turntable
 from pano4d.errors import InputError
 from pano4d.gaussians import SH_C0, Gaussians
 from pano4d.raster_torch import quat_to_rotation
+from pano4d.share_formats import for_classic_viewers
 
 # The start view: the panorama's viewpoint looking along +x (as `pano4d render` without
 # --camera), a 90° horizontal field of view at this aspect (viser's fov is vertical).
@@ -151,11 +154,12 @@ class SceneNodes:
 
 
 def add_scene(server: Any, scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> SceneNodes:
-    """Send the static set and every dynamic set (only the first shown); z is up."""
+    """Send the static set and every dynamic set (only the first shown), as a classic viewer
+    must receive them; z is up."""
     server.scene.set_up_direction("+z")
 
     def add(name: str, g: Gaussians, visible: bool) -> Any:
-        a = splat_arrays(g)
+        a = splat_arrays(for_classic_viewers(g, scene))
         handle = server.scene.add_gaussian_splats(
             name, a.centers, a.covariances, a.rgbs, a.opacities, visible=visible
         )
