@@ -356,6 +356,18 @@ impl ViewerApp {
             ui.label("Dynamic Gaussians");
             ui.label(dynamics.to_string());
             ui.end_row();
+            if let Some(open) = &self.opened {
+                ui.label("Mode").on_hover_text(
+                    "The rasteriser mode the scene was trained in, which its .ply4d records \
+                     (a plain .ply is classic); it is drawn in that mode",
+                );
+                ui.label(if open.scene.antialiased {
+                    "antialiased (2D filter)"
+                } else {
+                    "classic"
+                });
+                ui.end_row();
+            }
             ui.label("fps");
             let fps = if self.frame_seconds > 0.0 {
                 1.0 / self.frame_seconds

@@ -72,6 +72,9 @@ pub struct FrameRenderer {
     /// when they are streamed.
     stored: Vec<StoredSet>,
     playback: Playback,
+    /// The loaded scene's rasteriser mode ([`Scene::antialiased`]): every frame is drawn in
+    /// it, so that no caller can draw a scene in the other mode than it was trained in.
+    antialiased: bool,
     static_len: usize,
     /// Timestamp index whose dynamic set is resident.
     shown_time: Option<usize>,
@@ -119,6 +122,7 @@ impl FrameRenderer {
             playback: Playback::Streamed {
                 reason: "no scene loaded".into(),
             },
+            antialiased: false,
             static_len: 0,
             shown_time: None,
             dynamic_len: 0,
@@ -135,15 +139,16 @@ impl FrameRenderer {
         &self.renderer.context().device
     }
 
-    /// Forgets the previous scene; dynamic sets will be streamed (decoded and uploaded when
-    /// shown), and the next [`Self::show_time`] uploads `scene`'s static set. For a single
-    /// view this is all that is needed.
+    /// Forgets the previous scene and takes `scene`'s rasteriser mode; dynamic sets will be
+    /// streamed (decoded and uploaded when shown), and the next [`Self::show_time`] uploads
+    /// `scene`'s static set. For a single view this is all that is needed.
     pub fn load_scene(&mut self, scene: &Scene) {
         self.resident = None;
         self.stored = Vec::new();
         self.playback = Playback::Streamed {
             reason: "loaded for streaming".into(),
         };
+        self.antialiased = scene.antialiased;
         self.static_len = scene.static_set.len();
         self.shown_time = None;
         self.dynamic_len = 0;
@@ -296,8 +301,9 @@ impl FrameRenderer {
         target_texture(self.device(), width, height)
     }
 
-    /// Draws the shown timestamp from `camera` with `options` into `target` (a texture from
-    /// [`Self::create_target`] of the camera's size).
+    /// Draws the shown timestamp from `camera` with `options`, in the loaded scene's
+    /// rasteriser mode, into `target` (a texture from [`Self::create_target`] of the
+    /// camera's size).
     pub fn draw(
         &mut self,
         camera: &Camera,
@@ -309,8 +315,8 @@ impl FrameRenderer {
         };
         let settings = RenderSettings {
             background: options.background,
+            antialiased: self.antialiased,
             splat_scale: options.splat_scale.max(1e-3),
-            ..Default::default()
         };
         let start = Instant::now();
         let device = self.renderer.context().device.clone();
@@ -392,9 +398,10 @@ pub fn save_png(image: &RgbaImage, path: &Path) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::ViewCamera;
+    use crate::camera::{SceneExtent, ViewCamera};
     use crate::residency::Playback;
     use crate::synthetic;
+    use splat_core::gaussians::SH_C0;
     use splat_core::ply4d;
     use splat_core::raster::binding_limit;
 
@@ -504,6 +511,39 @@ mod tests {
         assert!(
             lit(&small) < lit(&normal),
             "a smaller splat scale covers fewer pixels"
+        );
+    }
+
+    #[test]
+    fn a_scene_is_drawn_in_the_mode_its_file_records() {
+        // One white Gaussian straight ahead, 0.3 px wide (σ) in `frame`'s view: sub-pixel,
+        // where the modes differ most. Both dilate it by 0.3 px²; the antialiased mode also
+        // scales its opacity by sqrt(det Σ / det(Σ + 0.3 I)), here 0.09 / 0.39.
+        const DISTANCE: f64 = 3.0;
+        const SIGMA_PX: f64 = 0.3;
+        let extent = SceneExtent {
+            median_distance: DISTANCE,
+        };
+        let fx = ViewCamera::panorama_viewpoint(&extent).to_camera(96, 64).fx;
+        let mut generated = synthetic::scene(1, 0, 1, 0, 5);
+        let set = &mut generated.static_set;
+        set.means[0] = [DISTANCE as f32, 0.0, 0.0];
+        set.log_scales[0] = [(SIGMA_PX * DISTANCE / fx).ln() as f32; 3];
+        set.sh = vec![0.5 / SH_C0; 3];
+        let mut peak = |antialiased: bool| {
+            generated.meta.antialiased = antialiased;
+            let scene = open_generated("mode", &generated);
+            let image = fresh_frame(&scene, 0);
+            image.pixels().map(|p| p.0[0]).max().unwrap() as f64
+        };
+        let classic = peak(false);
+        let antialiased = peak(true);
+        assert!(classic > 100.0, "the classic splat is bright: {classic}");
+        let ratio = antialiased / classic;
+        let expected = SIGMA_PX.powi(2) / (SIGMA_PX.powi(2) + 0.3);
+        assert!(
+            (ratio - expected).abs() < 0.05,
+            "antialiased / classic peak {antialiased} / {classic} = {ratio}, not {expected}"
         );
     }
 

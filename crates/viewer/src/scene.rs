@@ -41,6 +41,12 @@ pub struct Scene {
     /// SH degree of the static set (and, in a `.ply4d`, of every set).
     pub sh_degree: u32,
     pub extent: SceneExtent,
+    /// Whether the scene is drawn with the rasteriser's antialiased mode (Mip-Splatting's
+    /// 2D filter, `RenderSettings::antialiased`) rather than the classic one: the mode it
+    /// was trained in, which its `.ply4d` header records. Drawn in the other mode, a scene
+    /// looks wrong (too thin or too blurry), so this is the file's fact, not a choice. A
+    /// plain `.ply` records nothing and is classic, as every other 3DGS viewer draws it.
+    pub antialiased: bool,
 }
 
 fn describe(error: FileError) -> String {
@@ -140,6 +146,7 @@ impl Scene {
                 name,
                 timestamps,
                 extent,
+                antialiased: false,
             });
         }
         match sniff(path)? {
@@ -153,6 +160,7 @@ impl Scene {
                     name,
                     timestamps: vec![0.0],
                     extent,
+                    antialiased: false,
                 })
             }
             Kind::Ply4d => {
@@ -171,6 +179,8 @@ impl Scene {
                 };
                 Ok(Self {
                     sh_degree: reader.header().sh_degree,
+                    // Absent in files written before the key existed: classic.
+                    antialiased: reader.header().meta.antialiased,
                     static_set,
                     source: Source::Ply4d(Box::new(reader)),
                     name,
@@ -269,6 +279,8 @@ mod tests {
         let single = Scene::open(&p).unwrap();
         assert_eq!(single.num_times(), 1);
         assert!(!single.is_dynamic());
+        // A plain .ply records no mode: classic.
+        assert!(!single.antialiased);
         assert!(single.dynamic_set(0).unwrap().is_empty());
 
         let seq = dir.join("seq");
@@ -279,6 +291,7 @@ mod tests {
         std::fs::write(seq.join("notes.txt"), "not a frame").unwrap();
         let sequence = Scene::open(&seq).unwrap();
         assert_eq!(sequence.num_times(), 4);
+        assert!(!sequence.antialiased);
         assert!(sequence.static_set.is_empty());
         assert_eq!(sequence.dynamic_set(1).unwrap(), scene.dynamic[1]);
         // Counts without decoding, from the section table or the frames' headers.
@@ -286,6 +299,49 @@ mod tests {
         assert_eq!(opened.dynamic_counts().unwrap(), counts);
         assert_eq!(sequence.dynamic_counts().unwrap(), counts);
         assert_eq!(single.dynamic_counts().unwrap(), vec![0]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// `bytes` of a `.ply4d` as written before the `antialiased` key existed: the key is
+    /// blanked with spaces (the JSON keeps its length, so the sections stay where the table
+    /// says they are) and the header checksum over the JSON and the table is made again
+    /// (the layout of docs/ply4d.md).
+    fn without_antialiased_key(mut bytes: Vec<u8>) -> Vec<u8> {
+        let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+        let json_end = ply4d::PREAMBLE_LEN + u32_at(12) as usize;
+        let table_end = json_end + u32_at(16) as usize * ply4d::TABLE_ENTRY_LEN;
+        let key = b"\"antialiased\":false,";
+        let at = bytes[..json_end]
+            .windows(key.len())
+            .position(|window| window == key)
+            .expect("the writer records the key");
+        bytes[at..at + key.len()].fill(b' ');
+        let crc = crc32fast::hash(&bytes[ply4d::PREAMBLE_LEN..table_end]);
+        bytes[20..24].copy_from_slice(&crc.to_le_bytes());
+        bytes
+    }
+
+    #[test]
+    fn opens_a_ply4d_in_the_mode_its_header_records() {
+        let dir = temp_dir("mode");
+        let mut scene = synthetic::scene(300, 30, 2, 0, 3);
+        let open_with = |scene: &ply4d::Scene4d, name: &str| {
+            let path = dir.join(name);
+            ply4d::write(&path, scene).unwrap();
+            Scene::open(&path).unwrap()
+        };
+        scene.meta.antialiased = true;
+        assert!(open_with(&scene, "antialiased.ply4d").antialiased);
+        scene.meta.antialiased = false;
+        assert!(!open_with(&scene, "classic.ply4d").antialiased);
+
+        // A file from before the key: classic.
+        let old = dir.join("old.ply4d");
+        let bytes = std::fs::read(dir.join("classic.ply4d")).unwrap();
+        std::fs::write(&old, without_antialiased_key(bytes)).unwrap();
+        let opened = Scene::open(&old).unwrap();
+        assert!(!opened.antialiased);
+        assert_eq!(opened.dynamic_set(1).unwrap(), scene.dynamic[1]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

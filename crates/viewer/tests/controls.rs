@@ -44,9 +44,11 @@ fn open_viewer(dir: &Path) -> Harness<'static, ViewerApp> {
     harness
 }
 
-/// Clicks the widget labelled `label`; the second step draws what the click changed.
+/// Clicks the widget labelled `label` through accesskit, which reaches it also where the
+/// side panel is taller than the window and it is scrolled out of sight; the second step
+/// draws what the click changed.
 fn click(harness: &mut Harness<'static, ViewerApp>, label: &str) {
-    harness.get_by_label(label).click();
+    harness.get_by_label(label).click_accesskit();
     harness.step();
     harness.step();
 }

@@ -124,6 +124,17 @@ fn scene_is_visible_and_time_controls_are_there() {
     harness.get_by_label("Screenshot (PNG)");
     harness.get_by_label("20000");
     harness.get_by_label("2000");
+    harness.get_by_label("classic");
+
+    // The side panel names the mode the file records.
+    let mut antialiased = synthetic::scene(2_000, 200, TIMES, 1, 11);
+    antialiased.meta.antialiased = true;
+    let path = dir.0.join("antialiased.ply4d");
+    ply4d::write(&path, &antialiased).unwrap();
+    harness.state_mut().open(&path);
+    harness.run();
+    assert_eq!(harness.state().error(), None);
+    harness.get_by_label("antialiased (2D filter)");
 }
 
 #[test]
