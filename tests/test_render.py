@@ -95,7 +95,8 @@ def test_sh_degrees_and_off_centre_principal_point() -> None:
 # These footprints are derived by hand instead. The camera sits at the origin looking
 # along +x with +z up: image x (right) is world -y, image y (down) is world -z. On the
 # optical axis the EWA Jacobian is diag(f/z, f/z), so a Gaussian's image covariance is
-# (f/z)² times the (y, z) block of its world covariance, plus the 0.3 px² low-pass. An odd
+# (f/z)² times the (y, z) block of its world covariance, plus the mode's screen-space filter
+# (classic 0.3 px², antialiased 0.1 px², written out here, not imported). An odd
 # image size puts the axis on a pixel centre, where the footprint peaks.
 CLOSED_FORM_SIZE = (63, 47)
 
@@ -112,7 +113,7 @@ def footprint(mean2d: tuple[float, float], cov: torch.Tensor, opacity: float,
     ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64) + 0.5,
                             torch.arange(w, dtype=torch.float64) + 0.5, indexing="ij")
     d = torch.stack([xs - mean2d[0], ys - mean2d[1]], dim=-1)
-    blurred = cov + 0.3 * torch.eye(2, dtype=torch.float64)
+    blurred = cov + (0.1 if antialiased else 0.3) * torch.eye(2, dtype=torch.float64)
     power = -0.5 * torch.einsum("...i,ij,...j->...", d, torch.linalg.inv(blurred), d)
     if antialiased:
         opacity *= math.sqrt(float(torch.linalg.det(cov) / torch.linalg.det(blurred)))
@@ -416,7 +417,7 @@ EXTREMES = {
                         "log_scale": (1.8, 1.6, 2.0)}],
     # Screen-filling and opaque enough to end the pixels' walks.
     "huge": [{"mean": (3.0, 0.0, 0.0), "log_scale": (2.5, 3.0, 2.0), "opacity": 0.99}],
-    # Far below a pixel: the 0.3 px² low-pass is its footprint (and, antialiased, its
+    # Far below a pixel: the screen-space filter is its footprint (and, antialiased, its
     # opacity falls under the cut).
     "sub-pixel": [{"mean": (5.0, 0.1, 0.05), "log_scale": (-7.0, -7.5, -6.5), "opacity": 0.9}],
 }

@@ -6,12 +6,13 @@ gradients), not for speed. The rules (docs/rasterizer.md) are shared with the WG
 kernels (``crates/splat-core/src/raster/**/*.wgsl``):
 
 - EWA projection with the Jacobian's x/z, y/z clamped to 1.3·tan(half fov) (the view's,
-  ``Camera.half_fov_tan``: a window of a view keeps it), a 0.3 px²
-  low-pass, optional antialiasing (opacity · sqrt(det Σ / det(Σ + 0.3 I)));
-- culled: any non-finite parameter, camera z < 0.01, det(Σ + 0.3 I) <= 0, opacity
+  ``Camera.half_fov_tan``: a window of a view keeps it), then a screen-space filter F I:
+  classic, 3DGS's F = 0.3 px² at full opacity; antialiased, Mip-Splatting's F = 0.1 px²
+  with the opacity · sqrt(det Σ / det(Σ + F I));
+- culled: any non-finite parameter, camera z < 0.01, det(Σ + F I) <= 0, opacity
   < 1/255, a centre or footprint radius that is not finite; zero quaternions (|q|² <
   1e-12) become the identity; log-scales are clamped to [-12, 8];
-- footprint radius: ceil(3·sqrt(λmax)), λmax = m + sqrt(max(0.1, m² − det)) of Σ + 0.3 I
+- footprint radius: ceil(3·sqrt(λmax)), λmax = m + sqrt(max(0.1, m² − det)) of Σ + F I
   (m its mean eigenvalue): beyond it power < −4.5, so a Gaussian changes no pixel there
   (``pano4d.renderer.footprints`` reports it; this blending, dense, needs no bound);
 - colour: SH (degree 0–3) for the direction mean − camera centre, + 0.5, clamped at 0;
@@ -29,7 +30,8 @@ from pano4d.camera import Camera
 from pano4d.gaussians import SH_C0, Gaussians
 
 NEAR_PLANE = 0.01
-LOW_PASS = 0.3
+LOW_PASS = 0.3  # the classic mode's screen-space filter, px² (3DGS's dilation)
+MIP_FILTER = 0.1  # the antialiased mode's, px² (Mip-Splatting's 2D filter)
 MIN_LOG_SCALE = -12.0
 MAX_LOG_SCALE = 8.0
 QUAT_MIN_NORM2 = 1e-12
@@ -119,10 +121,15 @@ def ewa_covariance(
     return T @ T.transpose(1, 2)
 
 
+def screen_filter(antialiased: bool) -> float:
+    """The variance (px²) the mode adds to every 2D covariance."""
+    return MIP_FILTER if antialiased else LOW_PASS
+
+
 def antialiasing_factor(det: torch.Tensor, det_filtered: torch.Tensor) -> torch.Tensor:
-    """The antialiased mode's opacity factor sqrt(det Σ / det(Σ + LOW_PASS·I)) from those
-    two determinants of 2D covariances Σ in pixels²: 0 where either is not positive and
-    finite (a footprint with no area, which the mode does not draw)."""
+    """The opacity factor sqrt(det Σ / det(Σ + F·I)) that keeps a filtered Gaussian's
+    integral, from those two determinants of 2D covariances Σ in pixels²: 0 where either is
+    not positive and finite (a footprint with no area, which the mode does not draw)."""
     usable = (det > 0) & (det_filtered > 0) & torch.isfinite(det) & torch.isfinite(det_filtered)
     # Both masked before the division, so that no NaN/Inf enters the autograd graph.
     ratio = torch.where(usable, det, torch.ones_like(det)) / torch.where(
@@ -151,7 +158,8 @@ def project(g: Gaussians, camera: Camera, antialiased: bool, dtype: torch.dtype)
     cov = ewa_covariance(t, rz, log_scales, quats, camera)
     a0, b0, c0 = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det0 = a0 * c0 - b0 * b0
-    a1, c1 = a0 + LOW_PASS, c0 + LOW_PASS
+    filter_px2 = screen_filter(antialiased)
+    a1, c1 = a0 + filter_px2, c0 + filter_px2
     det1 = a1 * c1 - b0 * b0
     visible = visible & (det1 > 0) & torch.isfinite(det1)
     det1 = torch.where(visible, det1, torch.ones_like(det1))

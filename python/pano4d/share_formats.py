@@ -91,9 +91,11 @@ def morton_codes(points: np.ndarray) -> np.ndarray:
 
 
 def bake_antialiasing(g: Gaussians, viewpoint: Sequence[float], focal_px: float) -> Gaussians:
-    """``g``, trained in the antialiased mode, with that mode's opacity factor baked in: a
-    classic rasteriser draws the result as the antialiased one draws ``g`` from
-    ``viewpoint`` at a focal length of ``focal_px`` pixels. Only opacities change.
+    """``g``, trained in the antialiased mode, with its opacities scaled for a classic
+    rasteriser: each Gaussian seen from ``viewpoint`` at a focal length of ``focal_px``
+    pixels then draws the integral (opacity × area) the antialiased mode draws. Only
+    opacities change. (The shapes differ by the two modes' filters, Σ2D + LOW_PASS·I
+    against Σ2D + MIP_FILTER·I: a sub-pixel Gaussian comes out a little wider and fainter.)
 
     The factor sqrt(det Σ2D / det(Σ2D + LOW_PASS·I)) depends on the view. Σ2D is taken here
     as (f/d)²·P Σ Pᵀ: the 3D covariance Σ projected onto an orthonormal pair P across the

@@ -165,7 +165,11 @@ impl PyTrainSettings {
             c.losses.temporal,
             c.losses.geo,
             c.settings.background,
-            if c.settings.antialiased { "True" } else { "False" }
+            if c.settings.antialiased {
+                "True"
+            } else {
+                "False"
+            }
         )
     }
 }

@@ -47,7 +47,16 @@ struct RenderParams {
 
 const TILE_SIZE: u32 = 16u;
 const NEAR_PLANE: f32 = 0.01;
+// The screen-space filter added to every 2D covariance (pixels²): the classic mode's is
+// 3DGS's dilation, drawn at full opacity; the antialiased mode's is Mip-Splatting's 2D filter
+// (about a one-pixel box's variance, 1/12), with the opacity scaled to keep each Gaussian's
+// integral (docs/rasterizer.md, "Two modes": 0.1 against 0.3 measured there).
 const LOW_PASS: f32 = 0.3;
+const MIP_FILTER: f32 = 0.1;
+
+fn screen_filter(antialiased: u32) -> f32 {
+    return select(LOW_PASS, MIP_FILTER, antialiased != 0u);
+}
 const MIN_LOG_SCALE: f32 = -12.0;
 const MAX_LOG_SCALE: f32 = 8.0;
 const ALPHA_MAX: f32 = 0.999;

@@ -97,8 +97,9 @@ fn project_gaussian(g: Gaussian) -> ProjectedForward {
     let b0 = cov[1][0];
     let c0 = cov[1][1];
     let det0 = a0 * c0 - b0 * b0;
-    let a1 = a0 + LOW_PASS;
-    let c1 = c0 + LOW_PASS;
+    let filter_px2 = screen_filter(params.antialiased);
+    let a1 = a0 + filter_px2;
+    let c1 = c0 + filter_px2;
     let det1 = a1 * c1 - b0 * b0;
     if !(det1 > 0.0) || !is_finite_f32(det1) {
         return res;

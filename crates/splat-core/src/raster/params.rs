@@ -19,7 +19,8 @@ const JACOBIAN_CLAMP: f64 = 1.3;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
     pub background: [f32; 3],
-    /// Multiply opacity by sqrt(det Σ2D / det(Σ2D + 0.3 I)) (Mip-Splatting's 2D filter).
+    /// Draw through Mip-Splatting's 2D filter: Σ2D + 0.1 I with the opacity multiplied by
+    /// sqrt(det Σ2D / det(Σ2D + 0.1 I)); classic adds 3DGS's 0.3 I at full opacity.
     pub antialiased: bool,
     /// Multiplies every Gaussian's scale as it is drawn (the viewer's slider; 1 = as stored).
     pub splat_scale: f32,

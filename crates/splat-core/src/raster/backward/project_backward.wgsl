@@ -90,8 +90,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let b0 = cov[1][0];
     let c0 = cov[1][1];
     let det0 = a0 * c0 - b0 * b0;
-    let a1 = a0 + LOW_PASS;
-    let c1 = c0 + LOW_PASS;
+    let filter_px2 = screen_filter(params.antialiased);
+    let a1 = a0 + filter_px2;
+    let c1 = c0 + filter_px2;
     let det1 = a1 * c1 - b0 * b0;
     let conic = mat2x2<f32>(vec2<f32>(c1, -b0), vec2<f32>(-b0, a1)) * (1.0 / det1);
     let sig = sigmoid(g.opacity_logit);
@@ -108,7 +109,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     }
     let v_logit = v_opacity * factor * sig * (1.0 - sig);
 
-    // Conic = inverse(cov + 0.3 I): d/dcov1 = -C G C; the b entry appears twice in power.
+    // Conic = inverse(cov + filter_px2 I): d/dcov1 = -C G C; the b entry appears twice in power.
     let g_conic = mat2x2<f32>(vec2<f32>(v_conic.x, 0.5 * v_conic.y),
                               vec2<f32>(0.5 * v_conic.y, v_conic.z));
     let g_cov2 = (conic * g_conic * conic) * -1.0 + v_det1 * adj2(a1, b0, c1) + v_det0 * adj2(a0, b0, c0);
