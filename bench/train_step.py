@@ -12,7 +12,8 @@ stage is on (L1 + D-SSIM, L_geo).
 
 For each size, in one run and from the same start on the same views:
 - resident: ``ResidentTrainer`` (``pano4d._core.TrainSession``), the parameters, moments and
-  targets on the device;
+  targets on the device, in the knobs' default rasteriser mode (antialiased), and the same
+  in the classic mode (``classic s``: what a step cost before the mode, on the same set);
 - today's path: ``GaussianTrainer`` with the wgpu render backend (parameters uploaded and
   image read back for the forward, again for the backward, gradients read back, losses and
   Adam in torch on the host).
@@ -239,7 +240,8 @@ def main() -> None:
         features = random_feature_model(Path(folder), patch_size=14, image_size=518,
                                         hidden_size=32)  # fmt: skip
     header = (f"{'size':>9} {'view':>5} {'Gaussians':>10} {'SH':>3} {'resident s':>11} "
-              f"{'today s':>8} {'speed-up':>9} {'resident B':>11} {'today B':>12} "
+              f"{'classic s':>10} {'today s':>8} {'speed-up':>9} {'resident B':>11} "
+              f"{'today B':>12} "
               f"{'L_sem s':>8} {'L_sem B':>11} {'gsplat s':>9}")  # fmt: skip
     print(header, flush=True)
     rows = []
@@ -253,6 +255,9 @@ def main() -> None:
                                "sh_degree": g.sh_degree}  # fmt: skip
         paths: dict[str, Callable[..., dict[str, Any]]] = {
             "resident": resident_row,
+            "resident_classic": lambda g, v, k, s: resident_row(
+                g, v, k.model_copy(update={"antialiased": False}), s
+            ),
             "today": torch_row,
             "resident_sem": lambda *a: semantic_row(*a, features),
         }
@@ -286,6 +291,7 @@ def main() -> None:
 
 def print_row(row: dict[str, Any]) -> None:
     res, today, sem, gs = row["resident"], row["today"], row["resident_sem"], row["gsplat"]
+    classic = row["resident_classic"]
 
     def secs(part: dict[str, Any]) -> str:
         return f"{part['seconds']:.3f}" if "seconds" in part else "-"
@@ -296,9 +302,10 @@ def print_row(row: dict[str, Any]) -> None:
     speedup = (f"{today['seconds'] / res['seconds']:.2f}x"
                if "seconds" in res and "seconds" in today else "-")  # fmt: skip
     print(f"{row['size']:>9} {row['view']:>5} {row['gaussians']:>10,} {row['sh_degree']:>3} "
-          f"{secs(res):>11} {secs(today):>8} {speedup:>9} {size(res):>11} {size(today):>12} "
+          f"{secs(res):>11} {secs(classic):>10} {secs(today):>8} {speedup:>9} {size(res):>11} "
+          f"{size(today):>12} "
           f"{secs(sem):>8} {size(sem):>11} {secs(gs):>9}", flush=True)  # fmt: skip
-    for path in ("resident", "today", "resident_sem"):
+    for path in ("resident", "resident_classic", "today", "resident_sem"):
         if "error" in row[path]:
             print(f"{'':>9} {path} refused: {row[path]['error']}", flush=True)
 

@@ -517,7 +517,8 @@ def test_scene_yaml_overrides_reach_the_device_session(tmp_path: Any) -> None:
     write_image(tmp_path / "pano.png", np.zeros((256, 512, 3), np.float32))
     (tmp_path / "scene.yaml").write_text(
         "panorama: pano.png\nregions:\n  - box: [10, 20, 110, 60]\npreset: draft\n"
-        "overrides: {lambda_geo: 0.3, lambda_dssim: 0.25, lr_position: 0.004, lr_color: 0.02}\n"
+        "overrides: {lambda_geo: 0.3, lambda_dssim: 0.25, lr_position: 0.004, lr_color: 0.02,"
+        " antialiased: false}\n"
     )
     knobs = load_config(tmp_path / "scene.yaml").resolved_preset()
     g, views = _problem()
@@ -532,6 +533,7 @@ def test_scene_yaml_overrides_reach_the_device_session(tmp_path: Any) -> None:
     assert got.learning_rates["sh_dc"] == 0.02 and got.learning_rates["sh_rest"] == 0.02 / 20
     assert got.learning_rates["quats"] == Knobs(iterations=1).lr_rotation  # left alone
     assert got.betas == pytest.approx((0.9, 0.999)) and got.eps == 1e-15
+    assert got.antialiased is False and train_settings(Knobs(iterations=1)).antialiased
     with pytest.raises(ValueError, match="missing"):
         core.TrainSettings(**{**_settings_kwargs(got), "learning_rates": {"offsets": 1.0}})
 

@@ -243,7 +243,7 @@ class Ply4dFile:
     @property
     def antialiased(self) -> bool:
         """The mode every render of this scene must use (absent in older files: classic)."""
-        return bool(self.header.get("antialiased", False))
+        return bool(self.header["antialiased"])
 
     def static(self) -> Gaussians:
         with _format_errors():
