@@ -253,11 +253,13 @@ def main() -> None:
     for kind in args.kinds:
         for preset in args.presets:
             rows += train_pair(kind, preset, args)
-    write_json_atomic(args.json, {
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads",
-        "args": {k: str(v) for k, v in vars(args).items()}, "rows": rows,
-    })  # fmt: skip
+            # After each pair: a balanced pair is most of an hour here, and a run cut short
+            # keeps what it measured.
+            write_json_atomic(args.json, {
+                "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads",
+                "args": {k: str(v) for k, v in vars(args).items()}, "rows": rows,
+            })  # fmt: skip
     print(f"wrote {args.json}")
 
 
