@@ -517,8 +517,9 @@ mod tests {
     #[test]
     fn a_scene_is_drawn_in_the_mode_its_file_records() {
         // One white Gaussian straight ahead, 0.3 px wide (σ) in `frame`'s view: sub-pixel,
-        // where the modes differ most. Both dilate it by 0.3 px²; the antialiased mode also
-        // scales its opacity by sqrt(det Σ / det(Σ + 0.3 I)), here 0.09 / 0.39.
+        // where the modes differ most. Classic dilates it by 0.3 px² at full opacity; the
+        // antialiased mode by 0.1 px², its opacity scaled by sqrt(det Σ / det(Σ + 0.1 I)),
+        // here 0.09 / 0.19: the peaks' ratio.
         const DISTANCE: f64 = 3.0;
         const SIGMA_PX: f64 = 0.3;
         let extent = SceneExtent {
@@ -540,7 +541,7 @@ mod tests {
         let antialiased = peak(true);
         assert!(classic > 100.0, "the classic splat is bright: {classic}");
         let ratio = antialiased / classic;
-        let expected = SIGMA_PX.powi(2) / (SIGMA_PX.powi(2) + 0.3);
+        let expected = SIGMA_PX.powi(2) / (SIGMA_PX.powi(2) + 0.1);
         assert!(
             (ratio - expected).abs() < 0.05,
             "antialiased / classic peak {antialiased} / {classic} = {ratio}, not {expected}"
