@@ -518,8 +518,10 @@ mod tests {
     fn a_scene_is_drawn_in_the_mode_its_file_records() {
         // One white Gaussian straight ahead, 0.3 px wide (σ) in `frame`'s view: sub-pixel,
         // where the modes differ most. Classic dilates it by 0.3 px² at full opacity; the
-        // antialiased mode by 0.1 px², its opacity scaled by sqrt(det Σ / det(Σ + 0.1 I)),
-        // here 0.09 / 0.19: the peaks' ratio.
+        // antialiased mode by 0.1 px², its opacity scaled by sqrt(det Σ / det(Σ + 0.1 I)) =
+        // 0.09 / 0.19. The view's axis meets a pixel corner (an even size), so the brightest
+        // pixels' centres lie (½, ½) px off the mean: each mode's falloff there,
+        // exp(−¼ / (σ² + filter)), enters the peaks' ratio too.
         const DISTANCE: f64 = 3.0;
         const SIGMA_PX: f64 = 0.3;
         let extent = SceneExtent {
@@ -541,7 +543,9 @@ mod tests {
         let antialiased = peak(true);
         assert!(classic > 100.0, "the classic splat is bright: {classic}");
         let ratio = antialiased / classic;
-        let expected = SIGMA_PX.powi(2) / (SIGMA_PX.powi(2) + 0.1);
+        let variance = SIGMA_PX.powi(2);
+        let falloff = |filter: f64| (-0.25 / (variance + filter)).exp();
+        let expected = variance / (variance + 0.1) * falloff(0.1) / falloff(0.3);
         assert!(
             (ratio - expected).abs() < 0.05,
             "antialiased / classic peak {antialiased} / {classic} = {ratio}, not {expected}"
