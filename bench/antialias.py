@@ -41,7 +41,7 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
 from pano4d import ply4d, synth
-from pano4d.camera import Camera
+from pano4d.camera import Camera, focal_length
 from pano4d.config import load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
@@ -76,8 +76,8 @@ def full_density_size(view: Camera, knobs: dict[str, Any], fov_deg: float) -> in
     """The side of ``view`` (square) whose pixels subtend what a training view's do: the
     training views have ``view_size`` pixels over ``fov_deg``; a multiple of 4, so that ½
     and ¼ are whole pixels."""
-    focal = 0.5 * knobs["view_size"] / math.tan(math.radians(fov_deg) / 2)
-    side = 2 * focal * view.width / (2 * float(view.fx))  # the gt view's tan(fov/2) · 2f
+    focal = focal_length(fov_deg, knobs["view_size"])
+    side = focal * view.width / float(view.fx)  # the gt view's 2·tan(fov/2), times that focal
     return max(4, round(side / 4) * 4)
 
 
@@ -196,7 +196,7 @@ def train_pair(kind: str, preset: str, args: argparse.Namespace) -> list[dict[st
         print(summary_line(row), flush=True)
         rows.append(row)
         if antialiased:  # the 2D filter with Mip-Splatting's 3D filter added, after training
-            focal = 0.5 * knobs["view_size"] / math.tan(math.radians(cfg.lift.fov_deg) / 2)
+            focal = focal_length(cfg.lift.fov_deg, knobs["view_size"])
             position = torch.tensor(scene.camera["position"], dtype=torch.float64)
             filtered = replace(
                 scene,

@@ -49,6 +49,12 @@ def look_rotation(
     return torch.stack([right, down, f])
 
 
+def focal_length(fov_deg: float, width: float) -> float:
+    """Pixels per unit of tan: the focal length of a centred pinhole ``width`` pixels across
+    ``fov_deg`` degrees."""
+    return 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
+
+
 @dataclass
 class Camera:
     """A pinhole camera: ``K`` (3, 3) and ``world_to_cam`` (4, 4), both float64 tensors."""
@@ -86,7 +92,7 @@ class Camera:
         """A camera with horizontal field of view ``fov_deg``, square pixels, centred."""
         if not 0.0 < fov_deg < 180.0:
             raise ValueError(f"fov_deg must be in (0, 180), got {fov_deg}")
-        fx = 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
+        fx = focal_length(fov_deg, width)
         K = torch.tensor(
             [[fx, 0.0, width / 2.0], [0.0, fx, height / 2.0], [0.0, 0.0, 1.0]],
             dtype=torch.float64,

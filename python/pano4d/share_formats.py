@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from pano4d import ply4d
+from pano4d.camera import focal_length
 from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 from pano4d.gaussians import Gaussians
@@ -177,8 +178,7 @@ def for_classic_viewers(g: Gaussians, scene: ply4d.Ply4dFile) -> Gaussians:
             f"{scene.path}: camera.params fov_deg {fov_deg} and view_size {view_size} (or "
             f"camera.position {viewpoint}) are not a training view's"
         )
-    focal_px = view_size / (2 * math.tan(math.radians(fov_deg) / 2))
-    return bake_antialiasing(g, viewpoint, focal_px)
+    return bake_antialiasing(g, viewpoint, focal_length(fov_deg, view_size))
 
 
 def compressed_ply_chunks(g: Gaussians) -> Gaussians:

@@ -119,7 +119,9 @@ impl PyRasterOutput {
     }
 }
 
-fn render_settings(background: [f32; 3], antialiased: bool) -> RenderSettings {
+/// The settings Python's renders and training sessions draw with: a background and a mode
+/// (the viewer's splat scale stays at 1).
+pub(super) fn render_settings(background: [f32; 3], antialiased: bool) -> RenderSettings {
     RenderSettings {
         background,
         antialiased,

@@ -15,8 +15,8 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use super::gaussians::PyGaussianArrays;
-use super::raster::{slice, to_py, with_renderer, PyView};
-use crate::raster::{IntersectionCheck, RenderSettings};
+use super::raster::{render_settings, slice, to_py, with_renderer, PyView};
+use crate::raster::IntersectionCheck;
 use crate::train::{
     AdamConfig, LossParts, LossWeights, Traffic, TrainConfig, TrainSession, TrainedInput,
     ViewTargets, GROUPS, OUTSIDE_SUMS,
@@ -93,11 +93,7 @@ impl PyTrainSettings {
                     temporal: lambda_temporal,
                     geo: lambda_geo,
                 },
-                settings: RenderSettings {
-                    background,
-                    antialiased,
-                    ..Default::default()
-                },
+                settings: render_settings(background, antialiased),
             },
         })
     }
