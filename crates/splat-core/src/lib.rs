@@ -6,6 +6,7 @@
 //! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
 //! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).
 //! - [`raster`]: the wgpu compute rasteriser (forward and backward).
+//! - [`spacetime`]: spacetime Gaussians, one dynamic set with functions of time.
 //! - [`train`]: the lifting phase's training loop resident on the device.
 //!
 //! Python bindings live in [`python`] behind the `python` feature.
@@ -15,6 +16,7 @@ pub mod gaussians;
 pub mod ply;
 pub mod ply4d;
 pub mod raster;
+pub mod spacetime;
 pub mod train;
 mod wgsl;
 

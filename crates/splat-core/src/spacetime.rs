@@ -1,0 +1,141 @@
+//! Spacetime Gaussians: one dynamic set for every time of a looping animation, each
+//! Gaussian with canonical 3DGS parameters and a compact function of time (Fourier terms of
+//! its SH DC colour and its mean, an opacity that rises and falls around a centre time).
+//!
+//! The definition and its reference are Python's `pano4d.spacetime` (torch); docs/ply4d.md
+//! ("Version 2") states it; this is the CPU form the `.ply4d` reader and the viewer use,
+//! tested against the torch one (tests/test_spacetime.py).
+
+use crate::gaussians::{sh_coeffs, GaussianSet};
+
+/// Most Fourier terms a time model may have per quantity (a hostile file's bound).
+pub const MAX_HARMONICS: u32 = 8;
+
+/// The form of every Gaussian's function of time in one scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct TimeModel {
+    /// Frames per loop: frame `period` is frame 0.
+    pub period: u32,
+    /// Fourier terms of the SH DC colour.
+    pub colour_harmonics: u32,
+    /// Fourier terms of the mean.
+    pub position_harmonics: u32,
+}
+
+impl TimeModel {
+    /// Why this model cannot be, if it cannot.
+    pub fn check(&self) -> Result<(), String> {
+        if self.period < 1 {
+            return Err(format!("a loop's period must be ≥ 1 frame, got {}", self.period));
+        }
+        for (name, h) in [
+            ("colour_harmonics", self.colour_harmonics),
+            ("position_harmonics", self.position_harmonics),
+        ] {
+            if h > MAX_HARMONICS {
+                return Err(format!("{name} must be 0..={MAX_HARMONICS}, got {h}"));
+            }
+        }
+        Ok(())
+    }
+
+    /// cos(h·u), sin(h·u) for h = 1..=harmonics (cos₁, sin₁, cos₂, …), u = 2π·t / period,
+    /// computed in f64 as the torch form is.
+    pub fn basis(&self, t: f64, harmonics: u32) -> Vec<f32> {
+        let period = f64::from(self.period);
+        let u = std::f64::consts::TAU * t.rem_euclid(period) / period;
+        (1..=harmonics)
+            .flat_map(|h| {
+                let (sin, cos) = (f64::from(h) * u).sin_cos();
+                [cos as f32, sin as f32]
+            })
+            .collect()
+    }
+
+    /// Signed distance in frames from `centre` to `t` around the loop, in [−period/2,
+    /// period/2), in f32 as the torch form computes it.
+    pub fn distance(&self, t: f32, centre: f32) -> f32 {
+        let period = self.period as f32;
+        let d = t - centre;
+        d - period * (d / period + 0.5).floor()
+    }
+}
+
+/// N Gaussians with their functions of time ([`TimeModel`]).
+///
+/// `colour_terms` is `(N, 2·colour_harmonics, 3)` and `position_terms`
+/// `(N, 2·position_harmonics, 3)`, row-major, terms in the order cos₁, sin₁, cos₂, ….
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpacetimeSet {
+    pub model: TimeModel,
+    /// The Gaussians at no displacement and full presence.
+    pub canonical: GaussianSet,
+    /// τ, in frames.
+    pub time_centre: Vec<f32>,
+    /// log s, s the width in frames of the Gaussian's presence around τ.
+    pub time_log_width: Vec<f32>,
+    pub colour_terms: Vec<f32>,
+    pub position_terms: Vec<f32>,
+}
+
+impl SpacetimeSet {
+    pub fn len(&self) -> usize {
+        self.canonical.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.canonical.is_empty()
+    }
+
+    /// Why the arrays do not fit together, if they do not.
+    pub fn check(&self) -> Result<(), String> {
+        self.model.check()?;
+        let n = self.len();
+        let m = &self.model;
+        for (name, got, want) in [
+            ("time_centre", self.time_centre.len(), n),
+            ("time_log_width", self.time_log_width.len(), n),
+            (
+                "colour_terms",
+                self.colour_terms.len(),
+                n * 6 * m.colour_harmonics as usize,
+            ),
+            (
+                "position_terms",
+                self.position_terms.len(),
+                n * 6 * m.position_harmonics as usize,
+            ),
+        ] {
+            if got != want {
+                return Err(format!(
+                    "spacetime set of {n} Gaussians: {name} has {got} values, expected {want}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The Gaussians at time `t` (frames; any real value, taken modulo the period).
+    pub fn at(&self, t: f64) -> GaussianSet {
+        let m = &self.model;
+        let mut g = self.canonical.clone();
+        let k = sh_coeffs(g.sh_degree);
+        let colour = m.basis(t, m.colour_harmonics);
+        let position = m.basis(t, m.position_harmonics);
+        for n in 0..self.len() {
+            for c in 0..3 {
+                let dc = &mut g.sh[n * k * 3 + c];
+                for (j, w) in colour.iter().enumerate() {
+                    *dc += w * self.colour_terms[(n * colour.len() + j) * 3 + c];
+                }
+                let mean = &mut g.means[n][c];
+                for (j, w) in position.iter().enumerate() {
+                    *mean += w * self.position_terms[(n * position.len() + j) * 3 + c];
+                }
+            }
+            let z = m.distance(t as f32, self.time_centre[n]) * (-self.time_log_width[n]).exp();
+            g.opacity_logits[n] -= 0.5 * z * z;
+        }
+        g
+    }
+}
