@@ -5,9 +5,12 @@ in a subprocess and the parent measures all variants the same way: the stage tim
 (metrics.json), the optimisation steps each stage took (losses.json), a dynamic step's cost
 relative to a static one next to the moving share of the views' pixels, and — on the
 synthetic kinds, where the true animation feeds the lifting (as bench/quality.py does) —
-the moving region's PSNR in every frame against ground truth: four cameras a frame,
-displaced by 1 % of the median scene depth and looking at what moves, ray-cast by the
-scene's own world, PSNR over the pixels that see something moving. The lake (no ground
+the moving region's PSNR in every frame against ground truth (``region_quality``): four
+cameras, the same at every time, displaced by 1 % of the median scene depth and looking at
+what moves, ray-cast by the scene's own world, PSNR over the pixels that see something
+moving; the same half-way between the trained timestamps (t + 0.5), and the moving
+region's temporal error and flicker beside the truth's own; and the bytes of the .ply4d's
+dynamic sections. The lake (no ground
 truth) is timed with the real animator; with ``--flow`` the synthetic kinds are animated by
 it too (frame 0 under the kind's mask), to compare two animating paths on the same truth.
 
@@ -37,6 +40,7 @@ import math
 import os
 import platform
 import shutil
+import struct
 import subprocess
 import sys
 import time
@@ -206,11 +210,13 @@ def moving_share(scene_yaml: Path, output: Path) -> float:
     return float(np.mean(shares)) if shares else 0.0
 
 
-def region_psnr(
-    kind: str, seed: int, frames: int, output: Path
-) -> tuple[list[float], list[float]]:
-    """Per frame: PSNR over the moving pixels of CAMERAS_PER_FRAME ground-truth views, and
-    over the static pixels of the same views."""
+def region_quality(kind: str, seed: int, frames: int, output: Path) -> dict[str, Any]:
+    """Against ground truth, through CAMERAS_PER_FRAME cameras that see what moves (the same
+    cameras at every time): per frame, PSNR over the moving pixels and over the static ones;
+    per frame t, the moving pixels' PSNR at t + 0.5 (between two trained timestamps: a
+    version-1 scene shows t there, a spacetime one its functions at t + 0.5); and over the
+    loop, the moving pixels' temporal error, mean |(R₍t+1₎ − R₍t₎) − (G₍t+1₎ − G₍t₎)|, and
+    flicker, mean |R₍t+1₎ − R₍t₎|, beside the ground truth's own, mean |G₍t+1₎ − G₍t₎|."""
     from pano4d import ply4d
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
@@ -226,29 +232,63 @@ def region_psnr(
     # Directions that see what moves: the moving pixels of a small panorama.
     dirs = equirect_directions(256, 128).view(-1, 3)
     moving_dirs = dirs[world.moves(world.cast(torch.zeros(3), dirs).label)]
-    out, still = [], []
+    cameras, moving = [], []
+    for _ in range(CAMERAS_PER_FRAME):
+        forward = moving_dirs[int(torch.randint(len(moving_dirs), (), generator=gen))]
+        offset = torch.nn.functional.normalize(torch.randn(3, generator=gen), dim=0)
+        position = (offset * DISPLACEMENT * median).tolist()
+        cam = Camera.from_fov(CAMERA_FOV_DEG, CAMERA_SIZE, CAMERA_SIZE, position, forward.tolist())
+        hits = world.cast(cam.position.to(torch.float32), cam.world_directions().reshape(-1, 3))
+        cameras.append(cam)
+        moving.append(world.moves(hits.label).view(CAMERA_SIZE, CAMERA_SIZE))
+
+    def pair(t: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(render, truth) per camera at time t."""
+        with torch.no_grad():
+            g = scene.at(t)
+            return [
+                (render(g, cam, antialiased=scene.antialiased).rgb.clamp(0, 1).cpu(),
+                 render_view(world, cam, t)[0])
+                for cam in cameras
+            ]  # fmt: skip
+
+    def mean_psnr(images: list[tuple[torch.Tensor, torch.Tensor]], inside: bool) -> float:
+        values = [
+            psnr(rgb[m if inside else ~m], truth[m if inside else ~m])
+            for (rgb, truth), m in zip(images, moving, strict=True)
+            if (m.any() if inside else not m.all())
+        ]
+        return float(np.mean(values)) if values else math.nan
+
+    at_frames = [pair(float(t)) for t in range(frames)]
+    halfway = [mean_psnr(pair(t + 0.5), True) for t in range(frames)]
+    temporal, flicker, truth_flicker = [], [], []
     for t in range(frames):
-        values, static_values = [], []
-        for _ in range(CAMERAS_PER_FRAME):
-            forward = moving_dirs[int(torch.randint(len(moving_dirs), (), generator=gen))]
-            offset = torch.nn.functional.normalize(torch.randn(3, generator=gen), dim=0)
-            position = (offset * DISPLACEMENT * median).tolist()
-            cam = Camera.from_fov(
-                CAMERA_FOV_DEG, CAMERA_SIZE, CAMERA_SIZE, position, forward.tolist()
-            )
-            truth, _ = render_view(world, cam, t)
-            hits = world.cast(cam.position.to(torch.float32), cam.world_directions().reshape(-1, 3))
-            moves = world.moves(hits.label).view(CAMERA_SIZE, CAMERA_SIZE)
-            with torch.no_grad():
-                drawn = render(scene.at(t), cam, antialiased=scene.antialiased)
-                rgb = drawn.rgb.clamp(0, 1).cpu()
-            if moves.any():
-                values.append(psnr(rgb[moves], truth[moves]))
-            if not moves.all():
-                static_values.append(psnr(rgb[~moves], truth[~moves]))
-        out.append(float(np.mean(values)) if values else math.nan)
-        still.append(float(np.mean(static_values)) if static_values else math.nan)
-    return out, still
+        now, later = at_frames[t], at_frames[(t + 1) % frames]
+        for (r0, g0), (r1, g1), m in zip(now, later, moving, strict=True):
+            if m.any():
+                temporal.append(float(((r1 - r0) - (g1 - g0))[m].abs().mean()))
+                flicker.append(float((r1 - r0)[m].abs().mean()))
+                truth_flicker.append(float((g1 - g0)[m].abs().mean()))
+    return {
+        "moving_psnr": [mean_psnr(images, True) for images in at_frames],
+        "static_psnr": [mean_psnr(images, False) for images in at_frames],
+        "halfway_psnr": halfway,
+        "temporal_error": float(np.mean(temporal)) if temporal else math.nan,
+        "flicker": float(np.mean(flicker)) if flicker else math.nan,
+        "truth_flicker": float(np.mean(truth_flicker)) if truth_flicker else math.nan,
+    }
+
+
+def dynamic_bytes(path: Path) -> int:
+    """Bytes of a .ply4d's dynamic sections, from its section table (docs/ply4d.md)."""
+    with path.open("rb") as f:
+        preamble = f.read(32)
+        header_len, sections = struct.unpack_from("<II", preamble, 12)
+        f.seek(32 + header_len)
+        table = f.read(40 * sections)
+    entries = [struct.unpack_from("<IIQQ", table, 40 * i) for i in range(sections)]
+    return sum(length for kind, _, _, length in entries if kind == 1)
 
 
 def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any]:
@@ -280,10 +320,9 @@ def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any
         "window_share": window_share(output),
         "gaussians": metrics["gaussians"],
     }
+    row["dynamic_bytes"] = dynamic_bytes(output / "scene.ply4d")
     if case["kind"] != "lake":
-        row["moving_psnr"], row["static_psnr"] = region_psnr(
-            case["kind"], case["seed"], case["frames"], output
-        )
+        row.update(region_quality(case["kind"], case["seed"], case["frames"], output))
     return row
 
 
@@ -416,17 +455,23 @@ def main() -> None:
 
 HEADER = (f"{'case':<40}{'variant':>8}{'static s':>9}{'dyn s':>8}{'dyn/st':>7}"
           f"{'steps st':>9}{'steps dyn':>10}{'step x':>7}{'moving':>7}{'window':>7}"
-          f"{'PSNR mv':>8}{'PSNR st':>8}")  # fmt: skip
+          f"{'PSNR mv':>8}{'min mv':>7}{'t+.5':>7}{'PSNR st':>8}{'temp err':>9}"
+          f"{'flicker':>8}{'truth':>7}{'dyn MB':>7}")  # fmt: skip
 
 
 def print_row(r: dict[str, Any]) -> None:
-    psnr = float(np.nanmean(r["moving_psnr"])) if r.get("moving_psnr") else math.nan
-    still = float(np.nanmean(r["static_psnr"])) if r.get("static_psnr") else math.nan
+    def mean(key: str) -> float:
+        return float(np.nanmean(r[key])) if r.get(key) else math.nan
+
+    lowest = float(np.nanmin(r["moving_psnr"])) if r.get("moving_psnr") else math.nan
     print(f"{r['case']:<40}{r['variant']:>8}{r['timings_s']['static']:>9.1f}"
           f"{r['timings_s']['dynamic']:>8.1f}{r['dynamic_over_static']:>7.2f}"
           f"{r['steps']['static']:>9}{r['steps']['dynamic']:>10}"
           f"{r['step_ratio'] or math.nan:>7.2f}{r['moving_share']:>7.2f}"
-          f"{r.get('window_share', 1.0):>7.2f}{psnr:>8.2f}{still:>8.2f}",
+          f"{r.get('window_share', 1.0):>7.2f}{mean('moving_psnr'):>8.2f}{lowest:>7.2f}"
+          f"{mean('halfway_psnr'):>7.2f}{mean('static_psnr'):>8.2f}"
+          f"{r.get('temporal_error', math.nan):>9.4f}{r.get('flicker', math.nan):>8.4f}"
+          f"{r.get('truth_flicker', math.nan):>7.4f}{r['dynamic_bytes'] / 2**20:>7.2f}",
           flush=True)  # fmt: skip
 
 

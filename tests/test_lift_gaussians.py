@@ -22,12 +22,14 @@ from pano4d.lift.initial import (
     init_gaussians,
     init_sphere,
     points_in_mask,
+    spacetime_start,
 )
 from pano4d.lift.losses import moved_camera, pearson_loss, sem_alpha
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.torch_trainer import GaussianTrainer
 from pano4d.lift.trainer import Knobs, TrainViews
 from pano4d.regions import moving_in_video
+from pano4d.spacetime import TimeModel
 from pano4d.sphere import equirect_directions, view_layout
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -78,6 +80,29 @@ def test_a_later_timestamp_starts_with_the_colour_change_of_its_frame() -> None:
     assert torch.equal(moved.sh[:, 1:], g.sh[:, 1:])
     for name in ("means", "log_scales", "quats", "opacity_logits"):
         assert torch.equal(getattr(moved, name), getattr(g, name))  # the fit's geometry
+
+
+def test_the_spacetime_start_is_each_directions_colour_series_in_fourier_terms() -> None:
+    # Every direction's colour follows a loop of the first harmonic and the Nyquist one of
+    # 4 frames: the start reproduces it at every frame.
+    frames_count, height, width = 4, 32, 64
+    model = TimeModel(frames_count, colour_harmonics=3, position_harmonics=1)
+    t = torch.arange(frames_count, dtype=torch.float64)
+    u = 2 * math.pi * t / frames_count
+    channel = torch.tensor([0.1, -0.05, 0.08], dtype=torch.float64)
+    series = 0.5 + channel * torch.cos(u)[:, None] + 0.04 * torch.cos(2 * u)[:, None]
+    frames = series[:, None, None, :].expand(frames_count, height, width, 3).float()
+    ico = init_sphere(width, 4)
+    g = init_gaussians(ico.points, ico.spacing_rad, torch.full((height, width), 3.0), frames[0])
+    start = spacetime_start(g, frames, model)
+    for time in range(frames_count):
+        rgb = 0.5 + SH_C0 * start.at(float(time)).sh[:, 0]
+        assert torch.allclose(rgb, series[time].float().expand_as(rgb), atol=1e-5), time
+    assert torch.equal(start.canonical.means, g.means)
+    assert bool((start.at(0.0).opacity_logits - g.opacity_logits).abs().max() < 1e-3)
+    # Above the frames' Nyquist rate (h = 3 of 4 frames) nothing is fitted.
+    assert torch.equal(start.colour_terms[:, 4:], torch.zeros_like(start.colour_terms[:, 4:]))
+    assert torch.equal(start.position_terms, torch.zeros_like(start.position_terms))
 
 
 def test_facing_rotation_turns_local_z_onto_the_direction() -> None:

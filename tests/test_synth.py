@@ -169,6 +169,26 @@ def test_frames_loop(scene: synth.SynthScene) -> None:
     assert steps[-1] < 2.0 * min(steps[:-1]) and steps[-1] > 0.5 * max(steps[:-1])
 
 
+def test_the_world_shows_any_real_time_between_its_frames(scene: synth.SynthScene) -> None:
+    # Ground truth half-way between two frames (what a spacetime scene is measured against
+    # at t + 0.5): a real time is not truncated to the frame before it, integer times are
+    # the frames, and a time a loop later is the same time.
+    world = scene.world
+    dirs = equirect_directions(WIDTH, HEIGHT).view(-1, 3)
+    hits = world.cast(torch.zeros(3), dirs)
+
+    def shade(time: float) -> torch.Tensor:
+        return world.shade(torch.zeros(3), dirs, hits, time).view(HEIGHT, WIDTH, 3)
+
+    half = shade(1.5)
+    assert torch.equal(shade(1.0), scene.frames[1])
+    assert torch.allclose(shade(1.5 + FRAMES), half, atol=1e-5)
+    moving = scene.mask
+    for neighbour in (scene.frames[1], scene.frames[2]):
+        assert float((half - neighbour)[moving].abs().mean()) > 1e-3
+    assert torch.equal(half[~moving], scene.frames[1][~moving])
+
+
 def test_seam_and_poles_are_continuous(scene: synth.SynthScene) -> None:
     pano, depth = scene.panorama, scene.depth
 

@@ -154,6 +154,19 @@ class StageKnobs(BaseModel):
     later_iteration_share: Annotated[float, DYNAMIC_ONLY] = Field(0.5, gt=0, le=1)
     max_gaussians: int = Field(ge=1)  # the budget: static plus one timestamp's dynamic set
     sh_degree: int = Field(ge=0, le=3)  # spherical-harmonics degree of the Gaussians' colour
+    # How the dynamic stage models time: "per_timestamp" fits one set per timestamp in
+    # sequence (warm-started from t − 1); "spacetime" fits one set for every timestamp, each
+    # Gaussian with Fourier terms of its colour and position and an opacity over time
+    # (pano4d/spacetime.py), stored once in a version-2 .ply4d.
+    dynamic_model: Annotated[Literal["per_timestamp", "spacetime"], DYNAMIC_ONLY] = (
+        "per_timestamp"
+    )
+    # The spacetime set's Fourier terms per quantity (0: constant in time).
+    colour_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(2, ge=0, le=8)
+    position_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(1, ge=0, le=8)
+    # The spacetime stage's steps per step of the static stage (gaussian_iterations): one
+    # set trains on every frame's views at once, a step on one (view, time) pair.
+    spacetime_step_ratio: Annotated[float, DYNAMIC_ONLY] = Field(2.0, gt=0)
     # A dynamic step renders only the window of each view that the dynamic set can reach,
     # with the static Gaussians that can draw into it (lift/windows.py: the same loss and
     # gradient as the whole view's); false renders whole views, to compare.

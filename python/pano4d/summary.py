@@ -40,14 +40,15 @@ def run_table(metrics: dict[str, Any], output: Path, title: str = "pano4d train"
     table.add_row("time", f"{duration(sum(timings.values()))} ({stages})")
     counts = metrics.get("gaussians", {})
     dynamic = counts.get("dynamic", [])
-    per_time = f"{min(dynamic):,}" if dynamic else "0"
-    if dynamic and max(dynamic) != min(dynamic):
-        per_time += f"–{max(dynamic):,}"
-    table.add_row(
-        "Gaussians",
-        f"{counts.get('stored', 0):,} stored: {counts.get('static', 0):,} static once, "
-        f"{per_time} dynamic at each of {len(dynamic)} timestamps",
-    )
+    stored = f"{counts.get('stored', 0):,} stored: {counts.get('static', 0):,} static once, "
+    if counts.get("dynamic_model") == "spacetime":  # one set for every timestamp
+        stored += f"{sum(dynamic):,} dynamic once for all {counts['timestamps']} timestamps"
+    else:
+        per_time = f"{min(dynamic):,}" if dynamic else "0"
+        if dynamic and max(dynamic) != min(dynamic):
+            per_time += f"–{max(dynamic):,}"
+        stored += f"{per_time} dynamic at each of {len(dynamic)} timestamps"
+    table.add_row("Gaussians", stored)
     views = _by_displacement(metrics)
     quality = "; ".join(
         f"{v['psnr']:.1f} dB PSNR, SSIM {v['ssim']:.3f} with the camera moved {moved}"

@@ -27,6 +27,7 @@ from pano4d.fsutil import atomic_path
 
 CHECKPOINT_EVERY = 50  # optimisation steps between checkpoints
 STAGES = ("depth", "align", "static", "dynamic")  # in order; each depends on those before
+DYNAMIC_CHECKPOINT_VERSION = 2
 
 
 class TrainError(InputError, RuntimeError):
@@ -69,8 +70,10 @@ def stage_keys(cfg: SceneConfig) -> dict[str, str]:
             "features": cfg.features.model_dump(mode="json"),
             "seed": cfg.seed,
         },
-        # trained against the static set: everything static depends on, and its own knobs
-        "dynamic": later,
+        # trained against the static set: everything static depends on, and its own knobs;
+        # the version changes with what the stage's checkpoint holds (2: the spacetime set
+        # beside the per-timestamp sets), so an older checkpoint is discarded, not misread
+        "dynamic": {"version": DYNAMIC_CHECKPOINT_VERSION, **later},
     }
     keys: dict[str, str] = {}
     previous = ""

@@ -1,6 +1,7 @@
 """The files a lifting run writes (docs/design.md, "Files a run writes").
 
-``output/scene.ply4d`` (the static set once, a dynamic set per timestamp), ``preview.mp4``
+``output/scene.ply4d`` (the static set once, then the spacetime set once — version 2 — or a
+dynamic set per timestamp — version 1, the per-timestamp stage), ``preview.mp4``
 (a turntable at the origin, then on a small orbit), ``contact.png`` (ground-truth views
 beside their renders when gt/views.json lies beside the panorama, else test views of the
 moving region at a few times), ``metrics.json`` (timings, Gaussian counts, sizes, what
@@ -38,6 +39,7 @@ from pano4d.lift.pipeline import (
 )
 from pano4d.metrics import novel_view_metrics, psnr_of_mse
 from pano4d.resample import equirect_sampler, equirect_to_perspective
+from pano4d.spacetime import SpacetimeGaussians
 from pano4d.sphere import view_layout
 
 PREVIEW_FRAMES = 24  # per turntable (origin, then the displaced orbit)
@@ -106,7 +108,7 @@ def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
         columns = len(test)
     write_contact_sheet(out / "contact.png", tiles, columns, labels)
     wrote()
-    stored = [len(static.gaussians)] + [len(g) for g in dynamic.gaussians]
+    stored = [len(static.gaussians), *dynamic_counts(scene)]
     write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
     wrote()
     fit = training_fit(inputs, scene)
@@ -125,17 +127,22 @@ def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
 def scene4d(
     inputs: LiftInputs,
     static: Gaussians,
-    dynamic: list[Gaussians],
+    dynamic: list[Gaussians] | SpacetimeGaussians,
     alignment: Alignment,
     initial: InitialSets,
 ) -> ply4d.Scene4D:
-    """The .ply4d scene: the static set once, a dynamic set per timestamp, provenance."""
+    """The .ply4d scene: the static set once, the spacetime set (or a dynamic set per
+    timestamp), provenance."""
     cfg = inputs.cfg
     fps = cfg.animate.fps
     return ply4d.Scene4D(
         static=static.detach().to("cpu"),
-        dynamic=[g.detach().to("cpu") for g in dynamic],
-        timestamps=[t / fps for t in range(len(dynamic))],
+        dynamic=(
+            dynamic.detach().to("cpu")
+            if isinstance(dynamic, SpacetimeGaussians)
+            else [g.detach().to("cpu") for g in dynamic]
+        ),
+        timestamps=[t / fps for t in range(len(inputs.frames))],
         fps=fps,
         camera={
             "position": [0.0, 0.0, 0.0],
@@ -154,6 +161,13 @@ def scene4d(
             "init_points": initial.points,
         },
     )
+
+
+def dynamic_counts(scene: ply4d.Scene4D) -> list[int]:
+    """The Gaussians of each stored dynamic set: one spacetime set, or one per timestamp."""
+    if isinstance(scene.dynamic, SpacetimeGaussians):
+        return [len(scene.dynamic)]
+    return [len(g) for g in scene.dynamic]
 
 
 def read_gt_views(panorama: Path) -> list[dict[str, Any]]:
@@ -255,16 +269,19 @@ def run_metrics(
     """metrics.json: what the run took and made, what storing the static set once saved
     against storing (and training) every timestamp whole, and its limits (``training_fit``)."""
     n_static = len(scene.static)
-    n_dynamic = [len(g) for g in scene.dynamic]
+    n_dynamic = dynamic_counts(scene)
     stored = n_static + sum(n_dynamic)
-    whole = sum(n_static + n for n in n_dynamic)  # every timestamp stored whole
+    # every timestamp stored whole
+    whole = scene.num_times * n_static + sum(
+        len(scene.at(t)) - n_static for t in range(scene.num_times)
+    )
     size = path.stat().st_size
     bytes_per = size / max(stored, 1)
     iters = inputs.knobs.gaussian_iterations
     # Every timestamp trained whole: at a step timed on the whole scene in whole views
     # (pipeline.whole_scene_step), or the static stage's step when nothing moved.
     step = dynamic.full_scene_step if dynamic.full_scene_step is not None else static.per_step
-    whole_seconds = len(scene.dynamic) * iters * step
+    whole_seconds = scene.num_times * iters * step
     spent = static.seconds + dynamic.seconds
     cfg = inputs.cfg
     return {
@@ -276,6 +293,9 @@ def run_metrics(
         "gaussians": {
             "static": n_static,
             "dynamic": n_dynamic,
+            "timestamps": scene.num_times,
+            # "spacetime": one set, "dynamic" its count; "per_timestamp": a count per timestamp
+            "dynamic_model": inputs.knobs.dynamic_model,
             "stored": stored,
             "initial_points": initial.points,
         },

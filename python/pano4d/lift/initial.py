@@ -18,6 +18,7 @@ import torch
 
 from pano4d.gaussians import SH_C0, Gaussians, rgb_to_sh_dc, sh_coeffs_for_degree
 from pano4d.resample import equirect_sampler
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 from pano4d.sphere import Icosphere, dir_to_equirect, icosphere, icosphere_frequency_for_spacing
 
 INITIAL_OPACITY = 0.9
@@ -114,3 +115,36 @@ def follow_frame_change(
     sh = gaussians.sh.clone()
     sh[:, 0] += (change / SH_C0).to(sh.device, sh.dtype)
     return replace(gaussians, sh=sh)
+
+
+def spacetime_start(
+    gaussians: Gaussians, frames: torch.Tensor, model: TimeModel
+) -> SpacetimeGaussians:
+    """Where the spacetime stage starts: ``gaussians`` (frame 0's, at its depth) present
+    throughout, each one's SH DC and colour terms the Fourier series of the colour its
+    direction sees in every frame (``frames``: (L, H, W, 3), L = ``model.period``).
+
+    Why: what moves in these panoramas mostly changes colour in place (water, a screen,
+    drifting clouds), so the series of each direction's colours is most of the answer, and
+    its lowest Fourier terms are the closest a Gaussian with ``model.colour_harmonics``
+    terms can start to it (least squares over the frames, which the discrete transform is
+    for evenly spaced samples of one period)."""
+    count, height, width = frames.shape[:3]
+    if count != model.period:
+        raise ValueError(f"{count} frames for a loop of {model.period}")
+    look = equirect_sampler(gaussians.means.detach().cpu().to(torch.float64), width, height)
+    look = look.to(frames.device)
+    series = torch.stack([look.apply(f.permute(2, 0, 1).float()).T for f in frames])  # (L, N, 3)
+    dc_series = rgb_to_sh_dc(series.clamp(0, 1)).to(torch.float64)
+    sh = gaussians.sh.clone()
+    sh[:, 0] = dc_series.mean(0).to(sh.device, sh.dtype)
+    start = SpacetimeGaussians.still(model, replace(gaussians, sh=sh))
+    harmonics = model.colour_harmonics
+    basis = torch.stack([model.basis(t, harmonics) for t in range(count)])  # (L, 2·Hc)
+    # Twice the mean projection; once at the Nyquist rate (its sine is zero), none above it
+    # (the frames cannot tell those terms apart from lower ones).
+    h = torch.arange(1, harmonics + 1).repeat_interleave(2)
+    scale = torch.where(2 * h < count, 2.0 / count, torch.where(2 * h == count, 1.0 / count, 0.0))
+    terms = torch.einsum("lk,lnc->nkc", (basis * scale).to(dc_series), dc_series)
+    start.colour_terms.copy_(terms.to(start.colour_terms))
+    return start

@@ -53,6 +53,7 @@ from pano4d.lift.initial import (
     init_gaussians,
     init_sphere,
     points_in_mask,
+    spacetime_start,
 )
 from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
 from pano4d.lift.trainers import trainer_kind
@@ -60,6 +61,7 @@ from pano4d.lift.windows import previous_in_windows, reach_window, touching, win
 from pano4d.progress import Bars, Task
 from pano4d.regions import grow, moving_in_video, moving_mask
 from pano4d.resample import equirect_to_perspective
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 from pano4d.sphere import view_layout
 
 # on_step(stage, step): called after every unit of work a stage can be interrupted after:
@@ -467,13 +469,15 @@ def fit_static(
 
 @dataclass(frozen=True)
 class DynamicSets:
-    gaussians: list[Gaussians]  # one set per timestamp
+    # One set per timestamp (dynamic_model "per_timestamp"), or one set with functions of
+    # time for every timestamp ("spacetime").
+    gaussians: list[Gaussians] | SpacetimeGaussians
     seconds: float
     # Seconds per step when a step renders the whole static set and the dynamic set in
     # whole views, as training each timestamp whole would (``whole_scene_step``); None when
     # nothing was optimised.
     full_scene_step: float | None
-    logs: list[TrainLog]  # one per optimised timestamp; none when nothing was optimised
+    logs: list[TrainLog]  # one per optimisation (a timestamp's, or the spacetime set's)
 
 
 WHOLE_SCENE_STEPS = 10  # steps ``whole_scene_step`` times, after one to warm up
@@ -639,15 +643,122 @@ def fit_dynamic(
     return DynamicSets(done, spent, step, logs)
 
 
+def fit_spacetime(
+    inputs: LiftInputs,
+    static: Gaussians,
+    initial: Gaussians,
+    view_depth: torch.Tensor,
+    median_depth: float,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    on_step: StepHook | None,
+) -> DynamicSets:
+    """One dynamic set for every timestamp: the moving region's Gaussians, each with
+    functions of time (``pano4d.spacetime``), started from frame 0's set with every
+    frame's colours (``lift.initial.spacetime_start``) and optimised once against the frozen
+    static set, a step on one (view, time) pair of the views that see the moving region."""
+    state = checkpoints.load("dynamic") or {"seconds": 0.0}
+    knobs = inputs.knobs
+    total = len(inputs.frames)
+    model = TimeModel(total, knobs.colour_harmonics, knobs.position_harmonics)
+    iterations = max(1, round(knobs.spacetime_step_ratio * knobs.gaussian_iterations))
+    if "result" in state:
+        checkpoints.resumed("dynamic", step=iterations)
+        result = SpacetimeGaussians.from_numpy(state["result"], inputs.device)
+        return DynamicSets(result, state["seconds"], None, [TrainLog.from_dict(state["log"])])
+    cameras = inputs.cameras
+    moving = [inputs.moving_in_view(c) for c in cameras]
+    seeing = [i for i, m in enumerate(moving) if float(m.max()) > 0]
+    cams = [cameras[i] for i in seeing]
+    start_set = spacetime_start(initial, inputs.frames.to(inputs.device), model)
+    if len(initial) == 0 or not cams:
+        checkpoints.resumed("dynamic", step=0)
+        return DynamicSets(start_set, 0.0, None, [])
+    features = make_feature_model(inputs.cfg.features, inputs.device)
+    h, w = cameras[0].height, cameras[0].width
+    # As the per-timestamp stage: a step renders only the window of a view the dynamic set
+    # can reach, against the static Gaussians that can draw into it (not with L_sem).
+    windows = knobs.dynamic_windows and features is None
+    static_drawn, reach = static, None
+    if windows:
+        mode = (inputs.render_backend, knobs.antialiased)
+        reach = [reach_window(cameras[i], moving[i], initial, *mode) for i in seeing]
+        window_cameras = [r.camera(c) for r, c in zip(reach, cams, strict=True)]
+        static_drawn = static[touching(static, window_cameras, *mode)]
+        with torch.no_grad():
+            static_renders = [inputs.render(static, c) for c in cams]
+    frames = []
+    for t in range(total):
+        frame = views_of_frame(inputs, t, view_depth[t], lambda _c: torch.ones(h, w), seeing)
+        frames.append(frame if reach is None else windowed(frame, reach, static_renders))
+    views = joined(frames)
+    budget = knobs.max_gaussians - len(static)
+    trainer = make_trainer(
+        inputs.trainer,
+        start_set,
+        views,
+        trainer_knobs(knobs, iterations, budget, median_depth, cams, inputs.frames.shape[2]),
+        inputs.render,
+        static=static_drawn,
+        features=features,
+        seed=inputs.cfg.seed + 1,
+    )
+    log = TrainLog("dynamic", len(start_set))
+    if "trainer" in state:
+        resume(trainer, state, inputs.trainer, checkpoints.path("dynamic"))
+        log = TrainLog.from_dict(state["log"])
+    checkpoints.resumed("dynamic", step=trainer.step)
+    log.static_drawn = len(static_drawn)
+    log.window_share = sum(c.width * c.height for c in views.cameras) / (len(views.cameras) * h * w)
+    start = time.perf_counter()
+
+    def seconds() -> float:
+        return float(state["seconds"]) + time.perf_counter() - start
+
+    result = run_trainer(
+        trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step,
+        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations),
+    )  # fmt: skip
+    assert isinstance(result, SpacetimeGaussians)
+    checkpoints.save(
+        "dynamic", {"result": result.to_numpy(), "seconds": seconds(), "log": log.to_dict()}
+    )
+    return DynamicSets(result, seconds(), None, [log])
+
+
+def joined(frames: list[TrainViews]) -> TrainViews:
+    """One frame's views after another, as one list of (view, time) pairs: frame ``t``'s
+    views at time ``t``."""
+
+    def listed(field: str) -> list[torch.Tensor]:
+        return [image for views in frames for image in getattr(views, field)]
+
+    def stacked(field: str) -> torch.Tensor | None:  # windows' normalisers and outside sums
+        parts = [getattr(views, field) for views in frames]
+        return None if parts[0] is None else torch.cat(parts)
+
+    return TrainViews(
+        cameras=[c for views in frames for c in views.cameras],
+        targets=listed("targets"),
+        weights=listed("weights"),
+        depth=listed("depth"),
+        weight_sums=stacked("weight_sums"),
+        outside=stacked("outside"),
+        times=[float(t) for t, views in enumerate(frames) for _ in views.cameras],
+    )
+
+
 # --- where a rerun picks up ------------------------------------------------------------------
 def resume_point(checkpoints: Checkpoints, frames: int) -> str | None:
     """Where ``lift`` would pick a run of ``frames`` frames up, read from what the stages
     above keep in their checkpoints ("depth frame 2", "static step 50", "dynamic t=3",
     "export"); None when no stage has a checkpoint for these settings."""
     dynamic = checkpoints.load("dynamic")
-    if dynamic is not None:
+    if dynamic is not None and "done" in dynamic:  # the per-timestamp stage
         done = len(dynamic["done"])
         return "export" if done == frames else _at_step(f"dynamic t={done}", dynamic)
+    if dynamic is not None:  # the spacetime stage
+        return "export" if "result" in dynamic else _at_step("dynamic", dynamic)
     static = checkpoints.load("static")
     if static is not None:
         return "dynamic t=0" if "done" in static else _at_step("static", static)
@@ -702,7 +813,8 @@ def lift(
     static = fit_static(
         inputs, initial.static, view_depth.depth[0], median, checkpoints, bars, on_step
     )
-    dynamic = fit_dynamic(
+    fit = fit_spacetime if inputs.knobs.dynamic_model == "spacetime" else fit_dynamic
+    dynamic = fit(
         inputs, static.gaussians, initial.dynamic, view_depth.depth, median, checkpoints, bars,
         on_step,
     )  # fmt: skip

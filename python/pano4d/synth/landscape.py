@@ -260,8 +260,8 @@ class Landscape:
         """Which labels change over time: the sky (clouds) and the water."""
         return (label == LABEL_SKY) | (label == LABEL_WATER)
 
-    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
-        """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
+    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: float) -> torch.Tensor:
+        """Colour (N, 3) in [0, 1] of every ray at time ``time`` (frames, real-valued)."""
         return shade_split(self, self.shade_static, o, d, hits, time)
 
     def shade_static(self, o: torch.Tensor, d: torch.Tensor, hits: Hits) -> torch.Tensor:
@@ -285,7 +285,7 @@ class Landscape:
 
     def moving_shader(
         self, o: torch.Tensor, d: torch.Tensor, hits: Hits
-    ) -> Callable[[int], torch.Tensor]:
+    ) -> Callable[[float], torch.Tensor]:
         """time -> colour (N, 3) of rays that hit the sky or the water; what does not depend on
         time is computed once, here."""
         sky = (hits.label == LABEL_SKY).nonzero()[:, 0]
@@ -295,7 +295,7 @@ class Landscape:
         water_points = o + hits.depth[water, None] * d[water]
         water_dirs, water_dist = d[water], hits.depth[water]
 
-        def at(time: int) -> torch.Tensor:
+        def at(time: float) -> torch.Tensor:
             phase = self._phase(time)
             colour = torch.empty_like(d)
             colour[sky] = self.sky.colour(sky_rays, phase)
@@ -304,9 +304,9 @@ class Landscape:
 
         return at
 
-    def _phase(self, time: int) -> float:
+    def _phase(self, time: float) -> float:
         """Position in the loop, in [0, 1): exact periodicity, frame L is frame 0."""
-        return (int(time) % self.frames) / self.frames
+        return (time % self.frames) / self.frames
 
     def object_shadow(self, p: torch.Tensor) -> torch.Tensor:
         """1 where the sun reaches point p, 0 where an object blocks it."""

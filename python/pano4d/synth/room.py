@@ -403,13 +403,13 @@ class Room:
         """Which labels change over time: the screen and the sky (clouds)."""
         return (label == LABEL_SKY) | (label == LABEL_SCREEN)
 
-    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
-        """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
+    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: float) -> torch.Tensor:
+        """Colour (N, 3) in [0, 1] of every ray at time ``time`` (frames, real-valued)."""
         return shade_split(self, self.look.static, o, d, hits, time)
 
     def moving_shader(
         self, o: torch.Tensor, d: torch.Tensor, hits: Hits
-    ) -> Callable[[int], torch.Tensor]:
+    ) -> Callable[[float], torch.Tensor]:
         """time -> colour (N, 3) of rays that hit the sky or the screen; what does not depend
         on time is computed once, here."""
         o = torch.as_tensor(o, dtype=torch.float32).reshape(3)
@@ -419,8 +419,8 @@ class Room:
         play = self.look.screen(o + hits.depth[screen, None] * d[screen], hits.depth[screen],
                                 hits.normal[screen])  # fmt: skip
 
-        def at(time: int) -> torch.Tensor:
-            phase = (int(time) % self.frames) / self.frames
+        def at(time: float) -> torch.Tensor:
+            phase = (time % self.frames) / self.frames
             colour = torch.empty_like(d)
             colour[sky] = self.sky.colour(sky_rays, phase)
             colour[screen] = play(phase)

@@ -37,7 +37,7 @@ class SynthView:
         }
 
 
-def render_view(world: World, camera: Camera, time: int) -> tuple[torch.Tensor, torch.Tensor]:
+def render_view(world: World, camera: Camera, time: float) -> tuple[torch.Tensor, torch.Tensor]:
     """Ray-cast a perspective camera: image (h, w, 3) and z-depth (h, w)."""
     dirs = camera.world_directions().reshape(-1, 3)
     origin = camera.position.to(torch.float32)

@@ -60,13 +60,13 @@ class World(Protocol):
         """Intersect rays from one ``origin`` (3,) along unit ``dirs`` (N, 3) with the world."""
         ...
 
-    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: int) -> torch.Tensor:
-        """Colour (N, 3) in [0, 1] of every ray at time index ``time``."""
+    def shade(self, o: torch.Tensor, d: torch.Tensor, hits: Hits, time: float) -> torch.Tensor:
+        """Colour (N, 3) in [0, 1] of every ray at time ``time`` (frames, real-valued)."""
         ...
 
     def moving_shader(
         self, o: torch.Tensor, d: torch.Tensor, hits: Hits
-    ) -> Callable[[int], torch.Tensor]:
+    ) -> Callable[[float], torch.Tensor]:
         """time -> colour (N, 3) of rays that hit what moves (see ``moves``)."""
         ...
 
@@ -104,7 +104,7 @@ def shade_split(
     o: torch.Tensor,
     d: torch.Tensor,
     hits: Hits,
-    time: int,
+    time: float,
 ) -> torch.Tensor:
     """``World.shade`` of every kind: rays that hit what does not move coloured by
     ``static(o, d, hits)``, the others by ``world.moving_shader`` at ``time``."""
