@@ -131,6 +131,11 @@ class OptimisationKnobs(BaseModel):
     # SH degree 0 (4× 3DGS: our runs are hundreds of steps); the higher degrees take
     # lr_color / 20, as in 3DGS
     lr_color: float = Field(1e-2, ge=0)
+    # A spacetime set's (pano4d.spacetime) presence in time: its centre time moves in
+    # frames per step; its width's logarithm learns as the log-scales do. Its colour and
+    # position terms take lr_color and lr_position.
+    lr_time_centre: Annotated[float, DYNAMIC_ONLY] = Field(1e-2, ge=0)
+    lr_time_width: Annotated[float, DYNAMIC_ONLY] = Field(5e-3, ge=0)  # of the log-widths
     # Draw every Gaussian through the rasteriser's 2D filter with opacity compensation, in
     # training and in every render of the scene (docs/rasterizer.md): a view of fewer
     # pixels than the training views then shows what a supersampled render would, where

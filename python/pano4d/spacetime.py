@@ -31,6 +31,12 @@ import torch
 
 from pano4d.gaussians import Gaussians
 
+# The narrowest presence a trainer lets a Gaussian have, in frames: both trainers clamp
+# ``time_log_width`` to ≥ log(MIN_WIDTH_FRAMES) after each Adam step (the resident one
+# through splat-core's spacetime::MIN_WIDTH_FRAMES, which mirrors it). Narrower, a Gaussian
+# could fit one frame's targets alone and flash on and off as the animation plays.
+MIN_WIDTH_FRAMES = 1.5
+
 
 @dataclass(frozen=True)
 class TimeModel:

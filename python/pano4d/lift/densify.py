@@ -7,14 +7,17 @@ the iterations (the second half lets the last children settle, as in 3DGS's sche
 near-transparent Gaussians, split (large) or clone (small) those whose mean screen-space
 position gradient is over DENSIFY_GRADIENT, and keep the count within ``max_gaussians``.
 Adam's moments move with their Gaussians (``Densified.carry``): survivors keep theirs,
-split children and clones start at zero, the step count goes on. The thresholds are
+split children and clones start at zero, the step count goes on. A spacetime set is decided
+on by its canonical Gaussians (at full presence), and its time parameters move with them
+(``Densified.with_time``): children and clones take their parent's, so a split Gaussian's
+children appear, fade and move as it did. The thresholds are
 constants here: the papers' choices, not something a scene needs changed.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -23,6 +26,7 @@ from pano4d.gaussians import Gaussians
 from pano4d.lift.diagnosis import DensifyStats
 from pano4d.lift.trainer import Knobs
 from pano4d.raster_torch import quat_to_rotation
+from pano4d.spacetime import SpacetimeGaussians
 
 PRUNE_OPACITY = 0.005
 # Densification (3DGS's rule in screen-space units that do not depend on the view's size).
@@ -74,6 +78,12 @@ class Densified:
         rows = state[self.source]
         child = self.child.reshape(-1, *([1] * (state.dim() - 1)))
         return torch.where(child, torch.zeros_like(rows), rows)
+
+    def with_time(self, before: SpacetimeGaussians) -> SpacetimeGaussians:
+        """The densified Gaussians with the time parameters of ``before`` (the spacetime set
+        whose canonical Gaussians were decided on): each row takes its source's, survivors
+        their own and children and clones their parent's."""
+        return replace(before[self.source], canonical=self.gaussians)
 
 
 def split_and_prune(

@@ -55,7 +55,7 @@ from pano4d.lift.initial import (
     points_in_mask,
     spacetime_start,
 )
-from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
+from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, TrainedSet, Trainer, TrainViews
 from pano4d.lift.trainers import trainer_kind
 from pano4d.lift.windows import previous_in_windows, reach_window, touching, windowed
 from pano4d.progress import Bars, Task
@@ -287,18 +287,19 @@ def initial_sets(inputs: LiftInputs, depth0: torch.Tensor) -> InitialSets:
 # --- 5. and 6. optimisation ------------------------------------------------------------------
 def make_trainer(
     kind: str,
-    gaussians: Gaussians,
+    gaussians: TrainedSet,
     views: TrainViews,
     knobs: Knobs,
     render: RenderFn,
     static: Gaussians | None = None,
     features: FeatureModel | None = None,
     seed: int = 0,
-) -> Trainer:
-    """The optimiser of one set of Gaussians, over the frozen ``static`` set if given: the
-    one place the stages build one. ``kind`` is a key of trainers.TRAINERS; both trainers
-    see the same views in the same order (same seed). ``render`` is the torch trainer's
-    rasteriser; the resident one renders on the device."""
+) -> Trainer[TrainedSet]:
+    """The optimiser of one set of Gaussians or spacetime set (its result of the same
+    kind), over the frozen ``static`` set if given: the one place the stages build one.
+    ``kind`` is a key of trainers.TRAINERS; both trainers see the same views in the same
+    order (same seed). ``render`` is the torch trainer's rasteriser; the resident one
+    renders on the device."""
     return trainer_kind(kind).build(gaussians, views, knobs, render, static, features, seed)
 
 

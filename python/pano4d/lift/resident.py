@@ -48,7 +48,9 @@ def train_settings(
     ``TrainConfig``): learning rates per group, Adam's β and ε, the weights of L1, D-SSIM,
     L_temporal and L_geo (L_sem runs on the host), the background and the rasteriser's mode."""
     return core.TrainSettings(
-        learning_rates=learning_rates(knobs),
+        # The device takes the groups of a set of Gaussians until it trains spacetime sets.
+        learning_rates={k: v for k, v in learning_rates(knobs).items() if "time" not in k
+                        and not k.endswith("_terms")},
         betas=ADAM_BETAS,
         eps=ADAM_EPS,
         lambda_l1=1 - knobs.lambda_dssim,

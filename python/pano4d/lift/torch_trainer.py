@@ -8,11 +8,17 @@ static set if there is one, sums the terms of ``lift.losses`` into L, back-propa
 accumulates each Gaussian's screen-space position gradient for the densification statistic
 (``lift.densify``) and takes an Adam step (β, ε and the learning rates of
 ``lift.trainer``).
+
+A spacetime set (``pano4d.spacetime``) is drawn at the step's view time
+(``SpacetimeGaussians.at``) and autograd carries the gradient through that evaluation to
+its time parameters: its own Adam groups, its position terms as offsets in each Gaussian's
+unit like the means; after each step its log-widths are held at ≥ log(MIN_WIDTH_FRAMES).
 """
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -26,19 +32,24 @@ from pano4d.lift.trainer import (
     FeatureModel,
     Knobs,
     RenderFn,
+    TrainedSet,
     Trainer,
     TrainViews,
     learning_rates,
 )
+from pano4d.spacetime import MIN_WIDTH_FRAMES, SpacetimeGaussians, TimeModel
+
+# The floor of a spacetime set's log-widths, applied after each Adam step.
+MIN_LOG_WIDTH = math.log(MIN_WIDTH_FRAMES)
 
 
-class GaussianTrainer(Trainer):
-    """Optimises one set of Gaussians (optionally over the frozen static set) in torch,
-    rendering with ``render_fn`` (any differentiable rasteriser)."""
+class GaussianTrainer(Trainer[TrainedSet]):
+    """Optimises one set of Gaussians or one spacetime set (optionally over the frozen
+    static set) in torch, rendering with ``render_fn`` (any differentiable rasteriser)."""
 
     def __init__(
         self,
-        gaussians: Gaussians,
+        gaussians: TrainedSet,
         views: TrainViews,
         knobs: Knobs,
         render_fn: RenderFn,
@@ -50,26 +61,43 @@ class GaussianTrainer(Trainer):
         self.render_fn = render_fn
         super().__init__(gaussians, views, knobs, static, features, seed, background)
 
-    def _start(self, gaussians: Gaussians) -> None:
+    def _start(self, gaussians: TrainedSet) -> None:
         self._set_parameters(gaussians)
 
     # --- parameters ------------------------------------------------------------------------
     def _set_parameters(
-        self, g: Gaussians, anchors: torch.Tensor | None = None, unit: torch.Tensor | None = None
+        self, trained: Gaussians | SpacetimeGaussians, unit: torch.Tensor | None = None
     ) -> None:
-        g = g.detach()
-        self.anchors = g.means.clone() if anchors is None else anchors
+        """Optimise ``trained`` from here with a fresh Adam: its positions (the means, and
+        a spacetime set's position terms) as offsets from where they are now (their
+        anchors), in units of ``unit`` (by default each Gaussian's distance from the
+        centre)."""
+        trained = trained.detach()
+        g = trained.canonical if isinstance(trained, SpacetimeGaussians) else trained
+        self.anchors = g.means.clone()
         self.unit = (
             torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3) if unit is None else unit
         )  # one offset unit per Gaussian: its initial distance from the centre
         self.params = {
-            "offsets": ((g.means - self.anchors) / self.unit[:, None]).clone(),
+            "offsets": torch.zeros_like(g.means),
             "log_scales": g.log_scales.clone(),
             "quats": g.quats.clone(),
             "opacity_logits": g.opacity_logits.clone(),
             "sh_dc": g.sh[:, :1].clone(),
             "sh_rest": g.sh[:, 1:].clone(),
         }
+        # A spacetime set's time model and its position terms' anchors (None: Gaussians).
+        self.model: TimeModel | None = None
+        self.term_anchors: torch.Tensor | None = None
+        if isinstance(trained, SpacetimeGaussians):
+            self.model = trained.model
+            self.term_anchors = trained.position_terms.clone()
+            self.params |= {
+                "colour_terms": trained.colour_terms.clone(),
+                "position_terms": torch.zeros_like(trained.position_terms),
+                "time_centre": trained.time_centre.clone(),
+                "time_log_width": trained.time_log_width.clone(),
+            }
         for p in self.params.values():
             p.requires_grad_(True)
         rates = learning_rates(self.knobs)
@@ -81,29 +109,45 @@ class GaussianTrainer(Trainer):
         self.grad_accum = torch.zeros(len(g), device=self.device)
         self.grad_count = torch.zeros(len(g), device=self.device)
 
-    def gaussians(self) -> Gaussians:
-        """The current Gaussians (differentiable in the parameters)."""
+    def _trained(self) -> Gaussians | SpacetimeGaussians:
+        """The set being trained, differentiable in the parameters."""
         p = self.params
-        return Gaussians(
+        g = Gaussians(
             self.anchors + p["offsets"] * self.unit[:, None],
             p["log_scales"],
             p["quats"],
             p["opacity_logits"],
             torch.cat([p["sh_dc"], p["sh_rest"]], dim=1),
         )
+        if self.model is None or self.term_anchors is None:
+            return g
+        return SpacetimeGaussians(
+            self.model,
+            g,
+            p["time_centre"],
+            p["time_log_width"],
+            p["colour_terms"],
+            self.term_anchors + p["position_terms"] * self.unit[:, None, None],
+        )
 
-    def result(self) -> Gaussians:
-        return self.gaussians().detach()
+    def gaussians(self, time: float = 0.0) -> Gaussians:
+        """The trained Gaussians as drawn at ``time`` (frames; a set of Gaussians is the same
+        at every time), differentiable in the parameters."""
+        trained = self._trained()
+        return trained.at(time) if isinstance(trained, SpacetimeGaussians) else trained
 
-    def _scene(self) -> Gaussians:
-        g = self.gaussians()
+    def result(self) -> TrainedSet:
+        return cast(TrainedSet, self._trained().detach())
+
+    def _scene(self, time: float) -> Gaussians:
+        g = self.gaussians(time)
         return g if self.static is None else Gaussians.cat([self.static, g])
 
     # --- one step --------------------------------------------------------------------------
     def loss_at(self, index: int) -> torch.Tensor:
         v, k = self.views, self.knobs
-        camera = v.cameras[index]
-        out = self.render_fn(self._scene(), camera, self.background)
+        camera, time = v.cameras[index], v.time(index)
+        out = self.render_fn(self._scene(time), camera, self.background)
         rgb, depth = out.rgb, out.depth
         target, weight = v.targets[index], v.weights[index]
         wsum, outside = v.weight_sum(index), v.outside_sums(index)
@@ -126,7 +170,7 @@ class GaussianTrainer(Trainer):
         if k.lambda_sem > 0 and self.features is not None and alpha > 0:
             delta = torch.rand(3, generator=self.generator, dtype=torch.float64) * 2 - 1
             moved = moved_camera(camera, delta * alpha * k.sem_scale)
-            moved_rgb = self.render_fn(self._scene(), moved, self.background).rgb
+            moved_rgb = self.render_fn(self._scene(time), moved, self.background).rgb
             centre = self.features.cls(rgb.detach())
             shifted = self.features.cls(moved_rgb)
             terms["sem"] = 1 - F.cosine_similarity(centre, shifted, dim=0)
@@ -140,11 +184,17 @@ class GaussianTrainer(Trainer):
         loss.backward()
         grad = self.params["offsets"].grad
         if grad is not None:
-            means = self.anchors + self.params["offsets"].detach() * self.unit[:, None]
-            norm = screen_gradient(grad, means)
+            # The offsets' gradient is the drawn mean's times the unit (a spacetime set's
+            # mean at t moves with its offset one for one); its part across the ray to where
+            # the step drew the Gaussian is what moves it on that view's screen.
+            with torch.no_grad():
+                norm = screen_gradient(grad, self.gaussians(self.last_time).means)
             self.grad_accum += norm
             self.grad_count += (norm > 0).to(norm.dtype)
         self.optimiser.step()
+        if self.model is not None:
+            with torch.no_grad():
+                self.params["time_log_width"].clamp_(min=MIN_LOG_WIDTH)
         self.step += 1
         self.last_loss = float(loss.detach())
         if densify_due(self.knobs, self.step):
@@ -154,8 +204,10 @@ class GaussianTrainer(Trainer):
     # --- densify and prune ------------------------------------------------------------------
     def densify_and_prune(self) -> None:
         with torch.no_grad():
+            trained = self._trained().detach()
+            spacetime = isinstance(trained, SpacetimeGaussians)
             d = split_and_prune(
-                self.result(),
+                trained.canonical if spacetime else trained,
                 self.unit,
                 self.grad_accum,
                 self.grad_count,
@@ -165,9 +217,11 @@ class GaussianTrainer(Trainer):
             )
             self.last_densify = d.stats
             before = {name: self.optimiser.state.get(p) for name, p in self.params.items()}
-            # Offsets restart from zero at the new positions; Adam's moments (kept in offset
-            # units, and each Gaussian keeps its unit) move with their Gaussians.
-            self._set_parameters(d.gaussians, d.gaussians.means.clone(), d.unit)
+            # Offsets restart from zero at the new positions (and position terms); Adam's
+            # moments (kept in offset units, and each Gaussian keeps its unit) move with
+            # their Gaussians, a spacetime set's time parameters too (children take their
+            # parent's).
+            self._set_parameters(d.with_time(trained) if spacetime else d.gaussians, d.unit)
             for name, p in self.params.items():
                 state = before[name]
                 if state:
@@ -179,7 +233,7 @@ class GaussianTrainer(Trainer):
 
     # --- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        return {
+        state = {
             "params": {k: v.detach().cpu() for k, v in self.params.items()},
             "anchors": self.anchors.cpu(),
             "unit": self.unit.cpu(),
@@ -190,20 +244,44 @@ class GaussianTrainer(Trainer):
             "grad_count": self.grad_count.cpu(),
             "last_loss": self.last_loss,
         }
+        if self.model is not None and self.term_anchors is not None:
+            m = self.model
+            state["time_model"] = [m.period, m.colour_harmonics, m.position_harmonics]
+            state["term_anchors"] = self.term_anchors.cpu()
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        if ("time_model" in state) != (self.model is not None):
+            kinds = ("a set of Gaussians", "a spacetime set")
+            raise ValueError(
+                f"this checkpoint holds {kinds['time_model' in state]} and this trainer "
+                f"trains {kinds[self.model is not None]}"
+            )
         p = {k: v.to(self.device) for k, v in state["params"].items()}
-        anchors, unit = state["anchors"].to(self.device), state["unit"].to(self.device)
+        unit = state["unit"].to(self.device)
+        # Anchored where the checkpoint's were; every parameter (offsets included) is then
+        # copied as saved, not recomputed.
         g = Gaussians(
-            anchors + p["offsets"] * unit[:, None],
+            state["anchors"].to(self.device),
             p["log_scales"],
             p["quats"],
             p["opacity_logits"],
             torch.cat([p["sh_dc"], p["sh_rest"]], dim=1),
         )
-        self._set_parameters(g, anchors, unit)
+        trained: Gaussians | SpacetimeGaussians = g
+        if "time_model" in state:
+            trained = SpacetimeGaussians(
+                TimeModel(*state["time_model"]),
+                g,
+                p["time_centre"],
+                p["time_log_width"],
+                p["colour_terms"],
+                state["term_anchors"].to(self.device),
+            )
+        self._set_parameters(trained, unit)
         with torch.no_grad():
-            self.params["offsets"].copy_(p["offsets"])  # exact, not recomputed through means
+            for name, value in p.items():
+                self.params[name].copy_(value)
         self.optimiser.load_state_dict(state["optimiser"])
         self.generator.set_state(state["generator"])
         self.step = int(state["step"])

@@ -8,6 +8,12 @@ which exist, ``pipeline.make_trainer`` builds one per optimisation (the static s
 dynamic set per timestamp). Their losses are ``lift.losses``', their densification
 ``lift.densify``'s.
 
+A trainer optimises a set of Gaussians or a spacetime set (``pano4d.spacetime``: Gaussians
+with functions of time, trained with them) and gives back the kind it was given. Views
+then have times (``TrainViews.times``, in frames): a step draws the trained set at its
+view's time (``SpacetimeGaussians.at``) and its gradient reaches the time parameters
+through that evaluation; a set of Gaussians is the same at every time.
+
 Each step renders one view drawn from a seeded generator. Gaussians can be trained against
 the frozen static set (``static``: while a timestamp's dynamic set trains), which is
 rendered with them but gets no gradient. Positions are optimised as offsets in units of
@@ -24,7 +30,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import torch
 
@@ -33,10 +39,14 @@ from pano4d.config import OptimisationKnobs
 from pano4d.gaussians import Gaussians
 from pano4d.lift.diagnosis import DensifyStats
 from pano4d.lift.losses import OUTSIDE_SUMS
+from pano4d.spacetime import SpacetimeGaussians
 
 ADAM_EPS = 1e-15  # 3DGS's
 ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, what 3DGS trains with
 SH_REST_LR_DIVISOR = 20  # the higher SH degrees learn 20× slower than degree 0 (3DGS)
+
+# What a trainer optimises, and what its result() gives back: the same kind.
+TrainedSet = TypeVar("TrainedSet", Gaussians, SpacetimeGaussians)
 
 
 class RenderFn(Protocol):
@@ -60,7 +70,12 @@ class TrainViews:
     only the pixels the moving region reaches, lift.windows). Then ``weight_sums`` (V,)
     holds the whole views' loss normalisers and ``outside`` (V, len(OUTSIDE_SUMS)) the loss
     sums over the rest of each view, so that the loss and its gradient are the whole
-    view's. Views may then differ in size: the tensors hold lists."""
+    view's. Views may then differ in size: the tensors hold lists.
+
+    ``times`` (V,) is the time each view shows, in frames (real-valued, periodic), for a
+    spacetime set: a dynamic stage's list holds each camera once per frame, with that
+    frame's targets. None: every view shows one moment (a set of Gaussians does not change
+    in time)."""
 
     cameras: list[Camera]
     targets: torch.Tensor | list[torch.Tensor]
@@ -69,6 +84,11 @@ class TrainViews:
     previous: torch.Tensor | list[torch.Tensor] | None = None
     weight_sums: torch.Tensor | None = None
     outside: torch.Tensor | None = None
+    times: list[float] | None = None
+
+    def time(self, index: int) -> float:
+        """The time view ``index`` shows, in frames (0 when the views have no times)."""
+        return 0.0 if self.times is None else float(self.times[index])
 
     def weight_sum(self, index: int) -> torch.Tensor:
         """The loss normaliser of view ``index``: max(Σ weight, 1e-6) over the whole view."""
@@ -98,7 +118,9 @@ class Knobs(OptimisationKnobs):
 
 def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
     """Adam's learning rate per parameter group (the groups of GaussianTrainer.params and of
-    the resident trainer's TrainSettings)."""
+    the resident trainer's TrainSettings), a spacetime set's time parameters' last: its
+    colour terms learn as the SH DC, its position terms as the means (in the same offset
+    units), its centre times and log-widths at their own rates."""
     return {
         "offsets": knobs.lr_position,
         "log_scales": knobs.lr_scale,
@@ -106,10 +128,14 @@ def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
         "opacity_logits": knobs.lr_opacity,
         "sh_dc": knobs.lr_color,
         "sh_rest": knobs.lr_color / SH_REST_LR_DIVISOR,
+        "colour_terms": knobs.lr_color,
+        "position_terms": knobs.lr_position,
+        "time_centre": knobs.lr_time_centre,
+        "time_log_width": knobs.lr_time_width,
     }
 
 
-class Trainer(ABC):
+class Trainer(ABC, Generic[TrainedSet]):
     """What both trainers share (``GaussianTrainer`` in lift.torch_trainer,
     ``ResidentTrainer`` in lift.resident): their inputs, the step count, the seeded
     generator that draws each step's view, and the loop; a lifting stage can use either
@@ -118,7 +144,7 @@ class Trainer(ABC):
 
     def __init__(
         self,
-        gaussians: Gaussians,
+        gaussians: TrainedSet,
         views: TrainViews,
         knobs: Knobs,
         static: Gaussians | None = None,
@@ -130,6 +156,10 @@ class Trainer(ABC):
             raise ValueError(f"iterations must be ≥ 0, got {knobs.iterations}")
         if len(views.cameras) == 0:
             raise ValueError("no views to train on")
+        if views.times is not None and len(views.times) != len(views.cameras):
+            raise ValueError(
+                f"{len(views.cameras)} views with {len(views.times)} times: give one per view"
+            )
         self.views, self.knobs, self.features = views, knobs, features
         # The frozen static set, rendered with the trained Gaussians, never trained.
         self.static = static.detach() if static is not None else None
@@ -137,6 +167,7 @@ class Trainer(ABC):
         self.device = gaussians.device
         self.step = 0
         self.last_view = -1  # the view of the last step (the records say which view they saw)
+        self.last_time = 0.0  # and the time it shows, in frames (TrainViews.times)
         self.generator = torch.Generator().manual_seed(seed)
         self.last_loss = math.nan
         # For the diagnosis: diagnosis.TERMS names → values (tensors, read when logged).
@@ -145,12 +176,14 @@ class Trainer(ABC):
         self._start(gaussians)
 
     @abstractmethod
-    def _start(self, gaussians: Gaussians) -> None:
+    def _start(self, gaussians: TrainedSet) -> None:
         """Sets up the optimisation of ``gaussians`` (called once by __init__)."""
 
     def next_view(self) -> int:
-        """The view of the next step, drawn from the seeded generator (``last_view``)."""
+        """The view of the next step, drawn from the seeded generator (``last_view``; the
+        time it shows is ``last_time``)."""
         self.last_view = int(torch.randint(len(self.views.cameras), (), generator=self.generator))
+        self.last_time = self.views.time(self.last_view)
         return self.last_view
 
     @abstractmethod
@@ -158,8 +191,8 @@ class Trainer(ABC):
         """One step; returns the loss (the resident trainer's last one read back)."""
 
     @abstractmethod
-    def result(self) -> Gaussians:
-        """The trained Gaussians."""
+    def result(self) -> TrainedSet:
+        """The trained set, of the kind given."""
 
     @abstractmethod
     def densify_and_prune(self) -> None: ...
@@ -171,7 +204,7 @@ class Trainer(ABC):
     @abstractmethod
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
-    def run(self, on_step: Callable[[Trainer], bool] | None = None) -> Gaussians:
+    def run(self, on_step: Callable[[Trainer[TrainedSet]], bool] | None = None) -> TrainedSet:
         """Train up to ``knobs.iterations`` (continuing from ``self.step``), or until
         ``on_step`` returns True after a step; returns the result."""
         while self.step < self.knobs.iterations:

@@ -12,50 +12,51 @@ from typing import Protocol
 from pano4d.gaussians import Gaussians
 from pano4d.lift.resident import ResidentTrainer
 from pano4d.lift.torch_trainer import GaussianTrainer
-from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, Trainer, TrainViews
+from pano4d.lift.trainer import FeatureModel, Knobs, RenderFn, TrainedSet, Trainer, TrainViews
 
 
 class BuildTrainer(Protocol):
     def __call__(
         self,
-        gaussians: Gaussians,
+        gaussians: TrainedSet,
         views: TrainViews,
         knobs: Knobs,
         render: RenderFn,
         static: Gaussians | None,
         features: FeatureModel | None,
         seed: int,
-    ) -> Trainer: ...
+    ) -> Trainer[TrainedSet]: ...
 
 
 @dataclass(frozen=True)
 class TrainerKind:
-    build: BuildTrainer  # the trainer of one set of Gaussians (``pipeline.make_trainer``)
+    # The trainer of one set of Gaussians or spacetime set (``pipeline.make_trainer``).
+    build: BuildTrainer
     backends: tuple[str, ...]  # the rasterisers (``--backend``) it trains with
 
 
 def _resident(
-    gaussians: Gaussians,
+    gaussians: TrainedSet,
     views: TrainViews,
     knobs: Knobs,
     render: RenderFn,
     static: Gaussians | None,
     features: FeatureModel | None,
     seed: int,
-) -> Trainer:
+) -> Trainer[TrainedSet]:
     # ``render`` is not needed: the resident trainer renders on the device.
     return ResidentTrainer(gaussians, views, knobs, static=static, features=features, seed=seed)
 
 
 def _torch(
-    gaussians: Gaussians,
+    gaussians: TrainedSet,
     views: TrainViews,
     knobs: Knobs,
     render: RenderFn,
     static: Gaussians | None,
     features: FeatureModel | None,
     seed: int,
-) -> Trainer:
+) -> Trainer[TrainedSet]:
     return GaussianTrainer(
         gaussians, views, knobs, render, static=static, features=features, seed=seed
     )

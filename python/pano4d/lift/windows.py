@@ -225,4 +225,5 @@ def windowed(
         ),
         weight_sums=torch.stack(sums).to(device),
         outside=torch.stack(outside).to(device),
+        times=views.times,
     )
