@@ -185,6 +185,12 @@ pub struct PySpacetimeArrays {
     set: SpacetimeSet,
 }
 
+impl PySpacetimeArrays {
+    pub(super) fn set(&self) -> &SpacetimeSet {
+        &self.set
+    }
+}
+
 impl From<SpacetimeSet> for PySpacetimeArrays {
     fn from(set: SpacetimeSet) -> Self {
         Self { set }
