@@ -107,7 +107,8 @@ class Scene4D:
     """A 4D scene: ``static`` is shown at every timestamp, the dynamic Gaussians of
     timestamp ``t`` only at ``t``: ``dynamic[t]`` of one set per timestamp (format version
     1), or ``dynamic.at(t)`` of one ``SpacetimeGaussians`` (version 2, ``timestamps`` one
-    per frame of its loop). ``at(t)`` is both together, either way.
+    per frame of its loop): ``dynamic_at(t)`` either way, and ``at(t)`` static and dynamic
+    together.
 
     ``camera`` is the source panorama's camera: ``{"position": [x, y, z], "params": {...}}``
     with free-form params; ``provenance`` holds ``tool_version`` and ``config_hash``;
