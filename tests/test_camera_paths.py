@@ -17,6 +17,7 @@ from pano4d.camera import Camera
 from pano4d.cli import app
 from pano4d.gaussians import Gaussians
 from pano4d.renderer import render
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 from pano4d.sphere import dir_to_equirect
 
 runner = CliRunner()
@@ -102,6 +103,30 @@ def test_render_errors_are_clear(tmp_path: Path) -> None:
         app, ["render", str(scene), "--out", str(tmp_path / "x.png"), "--time", "3"]
     )
     assert bad_time.exit_code == 2 and "--time" in bad_time.output
+
+
+def test_render_of_a_version_2_scene_draws_it_at_the_time(tmp_path: Path) -> None:
+    """The wall as one spacetime set (format version 2) looping over 4 frames: in view at
+    frame 0, carried 100 m aside by its position harmonic at frame 2."""
+    wall = red_wall()
+    wall.means[:, 1] += 50.0
+    moving = SpacetimeGaussians.still(TimeModel(4, 0, 1), wall)
+    moving.position_terms[:, 0, 1] = -50.0  # cos₁ of y: y − 50·cos(2π·t / 4)
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, ply4d.Scene4D(Gaussians.empty(), moving, [0.0, 0.25, 0.5, 0.75], 4.0))
+
+    def centre_at(t: int) -> np.ndarray:
+        out = tmp_path / f"t{t}.png"
+        args = ["render", str(path), "--out", str(out), "--width", "64", "--height", "48"]
+        result = runner.invoke(app, [*args, "--time", str(t)])
+        assert result.exit_code == 0, result.output
+        return images.read_image(out)[20:28, 28:36]
+
+    assert centre_at(0)[..., 0].mean() > 0.9
+    assert centre_at(2).max() == 0.0
+    bad_time = runner.invoke(app, ["render", str(path), "--out", str(tmp_path / "x.png"),
+                                   "--time", "4"])  # fmt: skip
+    assert bad_time.exit_code == 2 and "out of range" in bad_time.output
 
 
 def test_turntable_video_has_the_frames_and_time_advances(tmp_path: Path) -> None:

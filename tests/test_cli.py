@@ -75,6 +75,34 @@ def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None
     assert junk.exit_code == 2 and "junk.ply4d" in junk.output
 
 
+def test_export_of_a_version_2_scene_is_its_set_at_the_time(tmp_path: Path) -> None:
+    import torch
+
+    from pano4d import ply4d
+    from pano4d.gaussians import Gaussians
+    from pano4d.spacetime import SpacetimeGaussians, TimeModel
+
+    canonical = Gaussians(
+        torch.rand(5, 3), torch.zeros(5, 3), torch.tensor([[1.0, 0, 0, 0]] * 5),
+        torch.zeros(5), torch.zeros(5, 1, 3),
+    )  # fmt: skip
+    moving = SpacetimeGaussians.still(TimeModel(3, 1, 1), canonical)
+    moving.position_terms.uniform_(-1, 1)
+    moving.colour_terms.uniform_(-1, 1)
+    scene = ply4d.Scene4D(canonical[:2], moving, [0.0, 0.5, 1.0], 2.0)
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    out = tmp_path / "t1.ply"
+    result = runner.invoke(app, ["export", str(path), str(out), "--time", "1"])
+    assert result.exit_code == 0, result.output
+    exported, expected = ply4d.read_ply(out), scene.at(1)
+    assert len(exported) == 7
+    for name, tensor in expected.tensors().items():
+        assert torch.equal(exported.tensors()[name], tensor), name
+    bad = runner.invoke(app, ["export", str(path), str(out), "--time", "3"])
+    assert bad.exit_code == 2 and "out of range" in bad.output
+
+
 def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
     from pano4d import images
 

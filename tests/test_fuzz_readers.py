@@ -1,8 +1,8 @@
 """The Python-side readers on damaged real files: truncation and byte flips.
 
-``pano4d.ply4d.read`` (.ply4d) and ``pano4d.ply4d.read_ply`` (.ply and SuperSplat
-.compressed.ply) read damaged copies of the real files in ../shared/data (read from there,
-written only to a temporary folder). Every case either reads the original count (for a
+``pano4d.ply4d.read`` (.ply4d, versions 1 and 2) and ``pano4d.ply4d.read_ply`` (.ply and
+SuperSplat .compressed.ply) read damaged copies of the real files in ../shared/data (read
+from there, written only to a temporary folder). Every case either reads the original count (for a
 .ply4d, whose checksums cover its data, the original scene exactly) or raises the one
 documented error, ValueError, with one line that names the file: never another exception,
 a Rust panic, or a silently wrong count.
@@ -21,11 +21,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pano4d import ply4d
 from pano4d.gaussians import Gaussians
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 EXAMPLES = int(os.environ.get("PANO4D_FUZZ_EXAMPLES", "40"))
@@ -72,13 +74,25 @@ def _ply_seed(path: Path) -> Seed:
     return Seed(data, header_len, counts, "".join(path.suffixes), check)
 
 
-def _ply4d_seed(folder: Path) -> Seed:
-    """A .ply4d made from the real 3DGS file: 600 static Gaussians, three dynamic sets."""
+def _ply4d_seed(folder: Path, spacetime: bool) -> Seed:
+    """A .ply4d made from the real 3DGS file: 600 static Gaussians, and three dynamic sets
+    (version 1) or 400 spacetime Gaussians looping over three frames (version 2)."""
     train = ply4d.read_ply(DATA / "gs_train1000.ply")
-    scene = ply4d.Scene4D(
-        train[:600], [train[600:700], train[700:850], train[850:]], [0.0, 0.125, 0.25], 8.0
-    )
-    path = folder / "seed.ply4d"
+    times = [0.0, 0.125, 0.25]
+    if spacetime:
+        gen = np.random.default_rng(0)
+        model = TimeModel(period=3, colour_harmonics=1, position_harmonics=1)
+
+        def values(*shape: int) -> torch.Tensor:
+            return torch.from_numpy(gen.standard_normal(shape, dtype=np.float32))
+
+        dynamic: list[Gaussians] | SpacetimeGaussians = SpacetimeGaussians(
+            model, train[600:], values(400), values(400), values(400, 2, 3), values(400, 2, 3)
+        )
+    else:
+        dynamic = [train[600:700], train[700:850], train[850:]]
+    scene = ply4d.Scene4D(train[:600], dynamic, times, 8.0)
+    path = folder / f"seed-{int(spacetime)}.ply4d"
     ply4d.write(path, scene)
     data = path.read_bytes()
     json_len, sections = struct.unpack_from("<II", data, 12)
@@ -86,9 +100,16 @@ def _ply4d_seed(folder: Path) -> Seed:
     def check(damaged: Path) -> None:
         back = ply4d.read(damaged)
         assert _same_bits(back.static, scene.static), "the static set read, but not as written"
-        assert len(back.dynamic) == len(scene.dynamic), "a wrong number of timestamps"
-        for t, (got, want) in enumerate(zip(back.dynamic, scene.dynamic, strict=True)):
-            assert _same_bits(got, want), f"dynamic set {t} read, but not as written"
+        assert back.num_times == scene.num_times, "a wrong number of timestamps"
+        if isinstance(scene.dynamic, SpacetimeGaussians):
+            assert isinstance(back.dynamic, SpacetimeGaussians), "not a spacetime set"
+            assert back.dynamic.model == scene.dynamic.model, "another time model"
+            assert _same_bits(back.dynamic.canonical, scene.dynamic.canonical), "canonical"
+            for name in ("time_centre", "time_log_width", "colour_terms", "position_terms"):
+                got, want = getattr(back.dynamic, name), getattr(scene.dynamic, name)
+                assert torch.equal(got, want), f"{name} read, but not as written"
+        for t in range(scene.num_times):
+            assert _same_bits(back.dynamic_at(t), scene.dynamic_at(t)), f"timestamp {t}"
         assert back.timestamps == scene.timestamps
 
     table = 32 + json_len
@@ -109,7 +130,8 @@ def seeds(folder: Path) -> dict[str, Seed]:
     return {
         "ply": _ply_seed(DATA / "gs_train1000.ply"),
         "compressed": _ply_seed(DATA / "gs_guitar.compressed.ply"),
-        "ply4d": _ply4d_seed(folder),
+        "ply4d": _ply4d_seed(folder, spacetime=False),
+        "ply4d-v2": _ply4d_seed(folder, spacetime=True),
     }
 
 
@@ -153,7 +175,7 @@ def _check_damaged(seed: Seed, folder: Path, edits: list[tuple[int, int]], cut: 
     return "read"
 
 
-@pytest.mark.parametrize("kind", ["ply", "compressed", "ply4d"])
+@pytest.mark.parametrize("kind", ["ply", "compressed", "ply4d", "ply4d-v2"])
 def test_damaged_files_read_right_or_fail_with_one_line_naming_the_file(
     kind: str, seeds: dict[str, Seed], folder: Path
 ) -> None:
@@ -171,7 +193,7 @@ def test_damaged_files_read_right_or_fail_with_one_line_naming_the_file(
     assert len(outcomes) >= EXAMPLES and "refused" in outcomes
 
 
-@pytest.mark.parametrize("kind", ["ply", "compressed", "ply4d"])
+@pytest.mark.parametrize("kind", ["ply", "compressed", "ply4d", "ply4d-v2"])
 def test_damage_to_the_records_alone_reads_in_a_ply_and_is_refused_in_a_ply4d(
     kind: str, seeds: dict[str, Seed], folder: Path
 ) -> None:
@@ -191,7 +213,7 @@ def test_damage_to_the_records_alone_reads_in_a_ply_and_is_refused_in_a_ply4d(
     run()
     print(f"{kind}: {len(outcomes)} files with damaged records, {outcomes.count('read')} read")
     assert len(outcomes) >= EXAMPLES
-    if kind == "ply4d":
+    if kind.startswith("ply4d"):
         assert "refused" in outcomes
     else:
         assert set(outcomes) == {"read"}

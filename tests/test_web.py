@@ -31,6 +31,7 @@ from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians, rgb_to_sh_dc
 from pano4d.renderer import render
 from pano4d.share_formats import for_classic_viewers
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 
 WIDTH, HEIGHT = 640, 360
 # SwiftShader's splats against pano4d's rasteriser, SH-0 colour, measured 2026-11-24: see
@@ -280,3 +281,19 @@ def test_viser_gets_an_antialiased_scene_baked(scene_file: Path, tmp_path: Path)
     for name, g in sets.items():
         assert_same_arrays(sent[name], web.splat_arrays(for_classic_viewers(g, ply4d.open(path))))
         assert (sent[name].opacities < web.splat_arrays(g).opacities).any(), name
+
+
+def test_viser_gets_a_version_2_scene_at_every_timestamp(tmp_path: Path) -> None:
+    """A spacetime set (format version 2) goes as one node per timestamp, each the set
+    evaluated there, as a version-1 scene's sets go."""
+    moving = SpacetimeGaussians.still(TimeModel(3, 1, 1), blob((2.0, 0.3, 0.0), (1.0, 0.1, 0.1)))
+    moving.position_terms[:, 1, 1] = 0.5  # sin₁ of y: the blob swings sideways
+    moving.colour_terms[:, 0, 2] = 1.0  # cos₁ of blue
+    path = tmp_path / "spacetime.ply4d"
+    ply4d.write(path, ply4d.Scene4D(wall(seed=0), moving, [0.0, 1 / 3, 2 / 3], 3.0))
+    sent = sent_to_viser(path)
+    assert sorted(sent) == ["/dynamic/t0000", "/dynamic/t0001", "/dynamic/t0002", "/static"]
+    assert_same_arrays(sent["/static"], web.splat_arrays(wall(seed=0)))
+    for t in range(3):
+        assert_same_arrays(sent[f"/dynamic/t{t:04d}"], web.splat_arrays(moving.at(t)))
+    assert not np.array_equal(sent["/dynamic/t0000"].centers, sent["/dynamic/t0001"].centers)

@@ -1,16 +1,33 @@
 """3DGS ``.ply`` files and the ``.ply4d`` 4D scene format (spec: docs/ply4d.md).
 
+A ``.ply4d`` holds a static set shown at every time and the dynamic Gaussians: one set per
+timestamp (format version 1) or one :class:`~pano4d.spacetime.SpacetimeGaussians` for every
+time of a looping animation (version 2). Both read the same way:
+
+- ``read(path).at(t)``: the scene's Gaussians at timestamp index ``t`` (a version-2 scene's
+  dynamic set evaluated there, ``SpacetimeGaussians.at``); ``read`` gives a :class:`Scene4D`
+  whose ``dynamic`` is a ``list[Gaussians]`` (version 1) or a ``SpacetimeGaussians``
+  (version 2).
+- ``open(path)``: a lazy :class:`Ply4dFile` (``version``, ``num_times``, ``timestamps``,
+  ``static()``, ``dynamic(t)``, ``at(t)``, ``spacetime()`` for version 2, ``verify()``,
+  ``export(t, out)``), which decodes only what is asked for.
+- ``write(path, scene)`` writes version 2 when ``scene.dynamic`` is a
+  ``SpacetimeGaussians``, else version 1; :class:`Ply4dWriter` streams a version-1 file
+  one timestamp at a time. ``export(path, t, out)`` writes timestamp ``t`` as a plain
+  3DGS ``.ply``; ``read_ply``/``write_ply`` read and write those.
+
 The reading and writing happen in Rust (``pano4d._core``, through ``pano4d.extension``);
-sets cross as its ``GaussianArrays``, converted to and from
-:class:`~pano4d.gaussians.Gaussians` by ``pano4d.extension``. Format errors raise
-``FormatError`` (a ``ValueError``) and operating-system errors ``OSError``, both with the
-Rust message, which names the file; a timestamp out of range raises ``TimeIndexError``.
-Every write is atomic (temporary file in the same folder, fsync, rename).
+sets cross as its ``GaussianArrays`` and ``SpacetimeArrays``, converted by
+``pano4d.extension``. Format errors raise ``FormatError`` (a ``ValueError``) and
+operating-system errors ``OSError``, both with the Rust message, which names the file; a
+timestamp out of range raises ``TimeIndexError``. Every write is atomic (temporary file in
+the same folder, fsync, rename).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -20,8 +37,15 @@ from typing import Any
 
 from pano4d import __version__
 from pano4d.errors import InputError
-from pano4d.extension import core, gaussian_arrays, gaussians_from
+from pano4d.extension import (
+    core,
+    gaussian_arrays,
+    gaussians_from,
+    spacetime_arrays,
+    spacetime_from,
+)
 from pano4d.gaussians import Gaussians
+from pano4d.spacetime import SpacetimeGaussians
 
 __all__ = [
     "FormatError",
@@ -80,7 +104,11 @@ def _default_provenance() -> dict[str, Any]:
 
 @dataclass
 class Scene4D:
-    """A 4D scene: ``static`` is shown at every timestamp, ``dynamic[t]`` only at ``t``.
+    """A 4D scene: ``static`` is shown at every timestamp, the dynamic Gaussians of
+    timestamp ``t`` only at ``t``: ``dynamic[t]`` of one set per timestamp (format version
+    1), or ``dynamic.at(t)`` of one ``SpacetimeGaussians`` (version 2, ``timestamps`` one
+    per frame of its loop): ``dynamic_at(t)`` either way, and ``at(t)`` static and dynamic
+    together.
 
     ``camera`` is the source panorama's camera: ``{"position": [x, y, z], "params": {...}}``
     with free-form params; ``provenance`` holds ``tool_version`` and ``config_hash``;
@@ -90,7 +118,7 @@ class Scene4D:
     """
 
     static: Gaussians
-    dynamic: list[Gaussians]
+    dynamic: list[Gaussians] | SpacetimeGaussians
     timestamps: list[float]
     fps: float
     camera: dict[str, Any] = field(default_factory=_default_camera)
@@ -99,7 +127,14 @@ class Scene4D:
     antialiased: bool = False
 
     def __post_init__(self) -> None:
-        if len(self.timestamps) != len(self.dynamic):
+        if isinstance(self.dynamic, SpacetimeGaussians):
+            period = self.dynamic.model.period
+            if len(self.timestamps) != period:
+                raise ValueError(
+                    f"Scene4D has {len(self.timestamps)} timestamps but its spacetime set "
+                    f"loops over {period} frames (one timestamp per frame)"
+                )
+        elif len(self.timestamps) != len(self.dynamic):
             raise ValueError(
                 f"Scene4D has {len(self.timestamps)} timestamps "
                 f"but {len(self.dynamic)} dynamic sets"
@@ -107,12 +142,18 @@ class Scene4D:
 
     @property
     def num_times(self) -> int:
-        return len(self.dynamic)
+        return len(self.timestamps)
+
+    def dynamic_at(self, t: int) -> Gaussians:
+        """The dynamic Gaussians of timestamp index ``t``."""
+        _check_time(t, self.num_times)
+        if isinstance(self.dynamic, SpacetimeGaussians):
+            return self.dynamic.at(t)
+        return self.dynamic[t]
 
     def at(self, t: int) -> Gaussians:
         """All Gaussians visible at timestamp index ``t``: static followed by dynamic."""
-        _check_time(t, self.num_times)
-        return Gaussians.cat([self.static, self.dynamic[t]])
+        return Gaussians.cat([self.static, self.dynamic_at(t)])
 
 
 def _check_time(t: int, num_times: int) -> None:
@@ -158,8 +199,10 @@ class Ply4dWriter:
                 w.push(g)
             w.finish(timestamps, fps)
 
-    Every set is stored at the static set's SH degree (lower degrees are zero-padded).
-    A writer closed without ``finish`` (or left by an exception) writes nothing.
+    or, for version 2, ``w.push_spacetime(s)`` once instead of the pushes (``timestamps``
+    then has one time per frame of ``s``'s loop). Every set is stored at the static set's SH
+    degree (lower degrees are zero-padded). A writer closed without ``finish`` (or left by
+    an exception) writes nothing.
     """
 
     def __init__(self, path: PathLike, static: Gaussians) -> None:
@@ -177,6 +220,18 @@ class Ply4dWriter:
         self._writer.push(gaussian_arrays(g.with_sh_degree(self.sh_degree)))
         self.num_times += 1
 
+    def push_spacetime(self, s: SpacetimeGaussians) -> None:
+        """Append the one spacetime set of a version-2 file: the dynamic Gaussians at every
+        time."""
+        if s.canonical.sh_degree > self.sh_degree:
+            raise ValueError(
+                f"the spacetime set has SH degree {s.canonical.sh_degree}, above the static "
+                f"set's {self.sh_degree}"
+            )
+        padded = dataclasses.replace(s, canonical=s.canonical.with_sh_degree(self.sh_degree))
+        self._writer.push_spacetime(spacetime_arrays(padded))
+        self.num_times = s.model.period
+
     def finish(
         self,
         timestamps: list[float],
@@ -186,7 +241,8 @@ class Ply4dWriter:
         extra: dict[str, Any] | None = None,
         antialiased: bool = False,
     ) -> None:
-        """Write the file (atomically); ``timestamps`` has one entry per pushed set."""
+        """Write the file (atomically); ``timestamps`` has one entry per pushed set (per
+        frame of the spacetime set's loop)."""
         self._finish(
             _meta_json(timestamps, fps, camera or {}, provenance or {}, extra or {}, antialiased)
         )
@@ -206,34 +262,52 @@ class Ply4dWriter:
 
 
 def write(path: PathLike, scene: Scene4D) -> None:
-    """Write ``scene`` as a ``.ply4d`` file.
+    """Write ``scene`` as a ``.ply4d`` file: version 2 when its dynamic part is a
+    ``SpacetimeGaussians``, else version 1.
 
     Sets of a lower SH degree are zero-padded to the scene's highest degree, since all
     sections of a file share one degree.
     """
-    degree = max([scene.static.sh_degree] + [g.sh_degree for g in scene.dynamic])
+    dynamic = scene.dynamic
+    degrees = (
+        [dynamic.canonical.sh_degree]
+        if isinstance(dynamic, SpacetimeGaussians)
+        else [g.sh_degree for g in dynamic]
+    )
+    degree = max([scene.static.sh_degree, *degrees])
     # Metadata is checked before any set is encoded.
     meta = _meta_json(
         scene.timestamps, scene.fps, scene.camera, scene.provenance, scene.extra, scene.antialiased
     )
     with Ply4dWriter(path, scene.static.with_sh_degree(degree)) as writer:
-        for g in scene.dynamic:
-            writer.push(g)
+        if isinstance(dynamic, SpacetimeGaussians):
+            writer.push_spacetime(dynamic)
+        else:
+            for g in dynamic:
+                writer.push(g)
         writer._finish(meta)
 
 
 class Ply4dFile:
     """A ``.ply4d`` file opened lazily (memory-mapped): only the sets asked for are read,
-    and each one's checksum is verified when it is read."""
+    and each one's checksum is verified when it is read. A version-2 file's spacetime set
+    is decoded once, on first use, and evaluated at each timestamp asked for."""
 
     def __init__(self, path: PathLike) -> None:
         self.path = os.fspath(path)
         with _format_errors():
             self._reader = core.Ply4dReader(self.path)
             self.header: dict[str, Any] = json.loads(self._reader.header_json())
+        self._spacetime: SpacetimeGaussians | None = None
+
+    @property
+    def version(self) -> int:
+        """The format version: 1, a dynamic set per timestamp; 2, one spacetime set."""
+        return int(self.header["format_version"])
 
     @property
     def num_times(self) -> int:
+        """Timestamps: dynamic sets (version 1), frames of the loop (version 2)."""
         return self._reader.num_times
 
     @property
@@ -249,14 +323,28 @@ class Ply4dFile:
         with _format_errors():
             return gaussians_from(self._reader.read_static())
 
+    def spacetime(self) -> SpacetimeGaussians:
+        """The spacetime set of a version-2 file, as stored (decoded once; FormatError for a
+        version-1 file)."""
+        if self._spacetime is None:
+            with _format_errors():
+                self._spacetime = spacetime_from(self._reader.read_spacetime())
+        return self._spacetime
+
     def dynamic(self, t: int) -> Gaussians:
+        """The dynamic Gaussians of timestamp index ``t`` (version 2: the spacetime set
+        evaluated there)."""
         _check_time(t, self.num_times)
+        if self.version == 2:
+            return self.spacetime().at(t)
         with _format_errors():
             return gaussians_from(self._reader.read_dynamic(t))
 
     def at(self, t: int) -> Gaussians:
-        """Static followed by dynamic set ``t``."""
+        """Static followed by the dynamic Gaussians of timestamp index ``t``."""
         _check_time(t, self.num_times)
+        if self.version == 2:
+            return Gaussians.cat([self.static(), self.dynamic(t)])
         with _format_errors():
             return gaussians_from(self._reader.read_at(t))
 
@@ -267,24 +355,32 @@ class Ply4dFile:
 
     def export(self, t: int, path_out: PathLike) -> None:
         """Write timestamp ``t`` (static + dynamic) as a plain 3DGS ``.ply``: a classic
-        scene's stored values copied byte for byte, an antialiased one's decoded and baked
-        for the classic viewers that read the file (``share_formats.for_classic_viewers``)."""
+        version-1 scene's stored values copied byte for byte, a version-2 one's evaluated at
+        ``t``, an antialiased one's baked for the classic viewers that read the file
+        (``share_formats.for_classic_viewers``)."""
         _check_time(t, self.num_times)
         if self.antialiased:
             # Imported here: share_formats builds on this module.
             from pano4d.share_formats import for_classic_viewers
 
             write_ply(path_out, for_classic_viewers(self.at(t), self))
-            return
-        with _format_errors():
-            self._reader.export_ply(t, os.fspath(path_out))
+        elif self.version == 2:
+            write_ply(path_out, self.at(t))
+        else:
+            with _format_errors():
+                self._reader.export_ply(t, os.fspath(path_out))
 
     def read(self) -> Scene4D:
         """Decode the whole scene."""
         h = self.header
+        dynamic = (
+            self.spacetime()
+            if self.version == 2
+            else [self.dynamic(t) for t in range(self.num_times)]
+        )
         return Scene4D(
             static=self.static(),
-            dynamic=[self.dynamic(t) for t in range(self.num_times)],
+            dynamic=dynamic,
             timestamps=list(h["timestamps"]),
             fps=h["fps"],
             camera=h["camera"],

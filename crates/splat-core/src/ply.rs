@@ -4,6 +4,10 @@
 //! Property names follow the Inria 3DGS code: `x y z`, optional `nx ny nz` (written as 0,
 //! ignored on read), `f_dc_0..2`, `f_rest_*` channel-major (`f_rest_{c*(K-1)+(k-1)}` holds
 //! `sh[k][c]`), `opacity` (logit), `scale_0..2` (log), `rot_0..3` (w, x, y, z).
+//!
+//! A standard file may carry extra float32 properties after the standard ones in every
+//! record ([`encode_ply_with_extra`], [`parse_ply_with_extra`]): `.ply4d` version 2 stores
+//! its time parameters so, and other 3DGS tools read the file and ignore them.
 
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -131,6 +135,40 @@ pub struct PlyHeader {
 impl PlyHeader {
     pub fn element(&self, name: &str) -> Option<&Element> {
         self.elements.iter().find(|e| e.name == name)
+    }
+
+    /// Whether the file is one `vertex` element whose properties are exactly `names`, in
+    /// that order, all float32.
+    pub fn is_vertex_layout(&self, names: &[String]) -> bool {
+        match self.elements.as_slice() {
+            [vertex] => {
+                vertex.name == "vertex"
+                    && vertex.properties.iter().map(|p| &p.name).eq(names)
+                    && vertex.properties.iter().all(|p| p.ty == ScalarType::F32)
+            }
+            _ => false,
+        }
+    }
+
+    /// The elements and their properties, as an error shows them (types other than float32
+    /// named).
+    fn layout(&self) -> String {
+        let element = |e: &Element| {
+            let properties = e.properties.iter().map(|p| match p.ty {
+                ScalarType::F32 => p.name.clone(),
+                ty => format!("{} ({ty:?})", p.name),
+            });
+            format!(
+                "element '{}': {}",
+                e.name,
+                properties.collect::<Vec<_>>().join(" ")
+            )
+        };
+        let elements: Vec<String> = self.elements.iter().map(element).collect();
+        match elements.as_slice() {
+            [] => "no element".to_string(),
+            _ => elements.join("; "),
+        }
     }
 
     /// Byte range of each element's records in the file, checked against `file_len`.
@@ -301,8 +339,30 @@ pub fn parse_ply(bytes: &[u8]) -> Result<GaussianSet> {
     if is_compressed {
         decode_compressed(bytes, &header, &ranges)
     } else {
-        decode_standard(bytes, &header, &ranges)
+        Ok(decode_standard(bytes, &header, &ranges, &[])?.0)
     }
+}
+
+/// Decodes a standard 3DGS PLY of `sh_degree` whose vertex records hold the standard
+/// properties in the Inria order followed by `extra` (all float32; nothing else, in exactly
+/// that order): the set, and the extra values, `extra.len()` per Gaussian, Gaussian-major.
+pub fn parse_ply_with_extra(
+    bytes: &[u8],
+    sh_degree: u32,
+    extra: &[String],
+) -> Result<(GaussianSet, Vec<f32>)> {
+    let header = parse_header(bytes)?;
+    let mut expected = standard_property_names(sh_degree);
+    expected.extend_from_slice(extra);
+    if !header.is_vertex_layout(&expected) {
+        return invalid(format!(
+            "expected one 'vertex' element of the float32 properties '{}', got {}",
+            expected.join(" "),
+            header.layout()
+        ));
+    }
+    let ranges = header.element_ranges(bytes.len())?;
+    decode_standard(bytes, &header, &ranges, extra)
 }
 
 fn element_index(header: &PlyHeader, name: &str) -> Result<usize> {
@@ -333,11 +393,14 @@ fn count_rest(element: &Element) -> usize {
         .count()
 }
 
+/// The Gaussians of a standard file, and the values of the `extra` vertex properties,
+/// `extra.len()` per Gaussian.
 fn decode_standard(
     bytes: &[u8],
     header: &PlyHeader,
     ranges: &[std::ops::Range<usize>],
-) -> Result<GaussianSet> {
+    extra: &[String],
+) -> Result<(GaussianSet, Vec<f32>)> {
     let vi = element_index(header, "vertex")?;
     let vertex = &header.elements[vi];
     for p in &vertex.properties {
@@ -377,6 +440,12 @@ fn decode_standard(
     );
     let opacity_i = index(opacity_off);
     let sh_i: Vec<usize> = sh_off.iter().map(|&o| index(o)).collect();
+    let extra_i = extra
+        .iter()
+        .map(|name| Ok(index(off(name)?)))
+        .collect::<Result<Vec<usize>>>()?;
+    // `n` records fit in the file (`element_ranges`), so this is bounded by its size.
+    let mut extra_values = Vec::with_capacity(n * extra_i.len());
     let mut floats = vec![0f32; vertex.stride / 4];
     for record in body.chunks_exact(vertex.stride) {
         for (f, b) in floats.iter_mut().zip(record.chunks_exact(4)) {
@@ -387,8 +456,9 @@ fn decode_standard(
         set.quats.push(rot_i.map(|i| floats[i]));
         set.opacity_logits.push(floats[opacity_i]);
         set.sh.extend(sh_i.iter().map(|&i| floats[i]));
+        extra_values.extend(extra_i.iter().map(|&i| floats[i]));
     }
-    Ok(set)
+    Ok((set, extra_values))
 }
 
 /// Vertices per chunk in the SuperSplat compressed layout.
@@ -607,12 +677,13 @@ pub fn standard_property_names(sh_degree: u32) -> Vec<String> {
     names
 }
 
-/// Header text of a standard 3DGS PLY with `n` vertices.
-pub(crate) fn standard_header(n: usize, sh_degree: u32) -> String {
+/// Header text of a standard 3DGS PLY with `n` vertices whose records end in the float32
+/// properties `extra`.
+pub(crate) fn standard_header(n: usize, sh_degree: u32, extra: &[String]) -> String {
     let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
-    for name in standard_property_names(sh_degree) {
+    for name in standard_property_names(sh_degree).iter().chain(extra) {
         header.push_str("property float ");
-        header.push_str(&name);
+        header.push_str(name);
         header.push('\n');
     }
     header.push_str("end_header\n");
@@ -621,10 +692,28 @@ pub(crate) fn standard_header(n: usize, sh_degree: u32) -> String {
 
 /// Encodes `set` as a standard 3DGS binary PLY.
 pub fn encode_ply(set: &GaussianSet) -> Result<Vec<u8>> {
+    encode_ply_with_extra(set, &[], &[])
+}
+
+/// Encodes `set` as a standard 3DGS binary PLY whose records end in the float32 properties
+/// `extra`, with `values` holding `extra.len()` per Gaussian, Gaussian-major.
+pub fn encode_ply_with_extra(
+    set: &GaussianSet,
+    extra: &[String],
+    values: &[f32],
+) -> Result<Vec<u8>> {
     set.validate().map_err(FileError::Invalid)?;
+    if values.len() != set.len() * extra.len() {
+        return invalid(format!(
+            "{} extra values for {} Gaussians of {} extra properties",
+            values.len(),
+            set.len(),
+            extra.len()
+        ));
+    }
     let k = sh_coeffs(set.sh_degree);
-    let header = standard_header(set.len(), set.sh_degree);
-    let floats_per_record = 14 + 3 * k;
+    let header = standard_header(set.len(), set.sh_degree, extra);
+    let floats_per_record = 14 + 3 * k + extra.len();
     let mut out = Vec::with_capacity(header.len() + set.len() * floats_per_record * 4);
     out.extend_from_slice(header.as_bytes());
     let mut record = Vec::with_capacity(floats_per_record);
@@ -640,6 +729,7 @@ pub fn encode_ply(set: &GaussianSet) -> Result<Vec<u8>> {
         record.push(set.opacity_logits[i]);
         record.extend_from_slice(&set.log_scales[i]);
         record.extend_from_slice(&set.quats[i]);
+        record.extend_from_slice(&values[i * extra.len()..(i + 1) * extra.len()]);
         for v in &record {
             out.extend_from_slice(&v.to_le_bytes());
         }
@@ -771,6 +861,42 @@ mod tests {
         assert_eq!(rest(1), 20.0); // k=2, c=0
         assert_eq!(rest(3), 11.0); // k=1, c=1
         assert_eq!(rest(8), 32.0); // k=3, c=2
+    }
+
+    #[test]
+    fn extra_properties_round_trip_and_must_match_exactly() {
+        let extra: Vec<String> = ["t_centre", "t_log_width"].map(String::from).to_vec();
+        for (n, degree) in [(0, 1), (5, 0), (9, 3)] {
+            let set = random_set(n, degree, 7 + n as u32);
+            let values: Vec<f32> = (0..2 * n).map(|i| i as f32 - 0.5).collect();
+            let bytes = encode_ply_with_extra(&set, &extra, &values).unwrap();
+            let (back, back_values) = parse_ply_with_extra(&bytes, degree, &extra).unwrap();
+            assert_eq!(bits(&back), bits(&set));
+            assert_eq!(back_values, values);
+            // Any 3DGS reader reads the set and ignores the extra properties.
+            assert_eq!(bits(&parse_ply(&bytes).unwrap()), bits(&set));
+            // Another list of extra properties, or another degree, is not this layout.
+            let err = parse_ply_with_extra(&bytes, degree, &extra[..1])
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("expected one 'vertex' element of the float32 properties 'x y z"));
+            assert!(err.ends_with("rot_3 t_centre t_log_width"), "{err}");
+            assert!(parse_ply_with_extra(&bytes, (degree + 1) % 4, &extra).is_err());
+        }
+        let plain = encode_ply(&random_set(2, 0, 1)).unwrap();
+        let err = parse_ply_with_extra(&plain, 0, &extra)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("properties '")
+                && err.contains("t_log_width', got element 'vertex': x y z nx"),
+            "{err}"
+        );
+        let set = random_set(2, 0, 1);
+        assert!(encode_ply_with_extra(&set, &extra, &[0.0; 3])
+            .unwrap_err()
+            .to_string()
+            .contains("3 extra values for 2 Gaussians of 2 extra properties"));
     }
 
     /// Builds a PLY with the given header property lines and raw f32 records.

@@ -26,7 +26,10 @@ impl TimeModel {
     /// Why this model cannot be, if it cannot.
     pub fn check(&self) -> Result<(), String> {
         if self.period < 1 {
-            return Err(format!("a loop's period must be ≥ 1 frame, got {}", self.period));
+            return Err(format!(
+                "a loop's period must be ≥ 1 frame, got {}",
+                self.period
+            ));
         }
         for (name, h) in [
             ("colour_harmonics", self.colour_harmonics),
@@ -137,5 +140,68 @@ impl SpacetimeSet {
             g.opacity_logits[n] -= 0.5 * z * z;
         }
         g
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One Gaussian of SH degree 0 with every time term set, centred at `centre`.
+    fn one(model: TimeModel, centre: f32) -> SpacetimeSet {
+        let terms = |h: u32| (0..6 * h).map(|i| 0.1 * i as f32 - 0.4).collect();
+        SpacetimeSet {
+            model,
+            canonical: GaussianSet {
+                sh_degree: 0,
+                means: vec![[1.0, -2.0, 0.5]],
+                log_scales: vec![[0.0; 3]],
+                quats: vec![[1.0, 0.0, 0.0, 0.0]],
+                opacity_logits: vec![2.0],
+                sh: vec![0.1, 0.2, 0.3],
+            },
+            time_centre: vec![centre],
+            time_log_width: vec![0.5],
+            colour_terms: terms(model.colour_harmonics),
+            position_terms: terms(model.position_harmonics),
+        }
+    }
+
+    #[test]
+    fn the_loop_closes() {
+        let model = TimeModel {
+            period: 6,
+            colour_harmonics: 2,
+            position_harmonics: 1,
+        };
+        for centre in [0.0, 3.0, 5.5, -7.0] {
+            let set = one(model, centre);
+            for t in [0.0, 1.0, 2.5, 5.0] {
+                let (a, b, c) = (set.at(t), set.at(t + 6.0), set.at(t - 12.0));
+                for other in [&b, &c] {
+                    assert_eq!(a.sh, other.sh, "t = {t}");
+                    assert_eq!(a.means, other.means, "t = {t}");
+                    let (x, y) = (a.opacity_logits[0], other.opacity_logits[0]);
+                    assert!((x - y).abs() <= 1e-5 * x.abs().max(1.0), "t = {t}: {x} {y}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn distance_is_the_shorter_way_round_the_loop() {
+        let model = TimeModel {
+            period: 8,
+            colour_harmonics: 0,
+            position_harmonics: 0,
+        };
+        for (t, centre, d) in [
+            (1.0, 0.0, 1.0),
+            (7.0, 0.0, -1.0),
+            (0.0, 7.5, 0.5),
+            (4.0, 0.0, -4.0),
+        ] {
+            assert_eq!(model.distance(t, centre), d, "t = {t}, centre {centre}");
+        }
     }
 }

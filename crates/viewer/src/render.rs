@@ -493,6 +493,36 @@ mod tests {
     }
 
     #[test]
+    fn a_version_2_scene_draws_as_the_version_1_scene_of_its_evaluated_sets() {
+        let generated = synthetic::spacetime_scene(3_000, 400, 4, 1, 5);
+        let dir = std::env::temp_dir().join(format!("pano4d-render-v2-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("scene.ply4d");
+        ply4d::write_spacetime(&path, &generated).unwrap();
+        let spacetime = Scene::open(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let evaluated = open_generated(
+            "v2-evaluated",
+            &ply4d::Scene4d {
+                static_set: generated.static_set.clone(),
+                dynamic: (0..4).map(|t| generated.dynamic.at(t as f64)).collect(),
+                meta: generated.meta.clone(),
+            },
+        );
+        let mut renderer = FrameRenderer::headless().unwrap();
+        renderer.load_scene(&spacetime);
+        for t in [0, 1, 2, 3, 0] {
+            let got = frame(&mut renderer, &spacetime, t, 1.0);
+            assert!(got.pixels().any(|p| p.0[..3] != [0, 0, 0]), "nothing drawn");
+            assert!(got == fresh_frame(&evaluated, t), "timestamp {t}");
+        }
+        assert!(
+            fresh_frame(&evaluated, 0) != fresh_frame(&evaluated, 2),
+            "the ball bobs"
+        );
+    }
+
+    #[test]
     fn resident_frames_match_a_fresh_upload_of_the_same_timestamp() {
         let scene = open("resident", 3_000, 400, 3);
         let mut playing = FrameRenderer::headless().unwrap();

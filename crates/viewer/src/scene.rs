@@ -229,9 +229,10 @@ impl Scene {
     /// section table, or each frame file's header.
     pub fn dynamic_counts(&self) -> Result<Vec<usize>, String> {
         match &self.source {
-            Source::Ply4d(reader) if reader.num_times() > 0 => Ok(reader.sections()[1..]
-                .iter()
-                .map(|section| section.count as usize)
+            Source::Ply4d(reader) if reader.num_times() > 0 => Ok(reader
+                .dynamic_counts()
+                .into_iter()
+                .map(|count| count as usize)
                 .collect()),
             Source::Ply4d(_) | Source::Ply => Ok(vec![0; self.num_times()]),
             Source::Sequence(frames) => frames.iter().map(|f| vertex_count(f)).collect(),
@@ -299,6 +300,24 @@ mod tests {
         assert_eq!(opened.dynamic_counts().unwrap(), counts);
         assert_eq!(sequence.dynamic_counts().unwrap(), counts);
         assert_eq!(single.dynamic_counts().unwrap(), vec![0]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn opens_a_version_2_ply4d_at_every_timestamp() {
+        let dir = temp_dir("spacetime");
+        let scene = synthetic::spacetime_scene(500, 100, 6, 1, 3);
+        let path = dir.join("scene.ply4d");
+        ply4d::write_spacetime(&path, &scene).unwrap();
+        let opened = Scene::open(&path).unwrap();
+        assert_eq!(opened.num_times(), 6);
+        assert!(opened.is_dynamic());
+        assert_eq!(opened.static_set, scene.static_set);
+        for t in 0..6 {
+            assert_eq!(opened.dynamic_set(t).unwrap(), scene.dynamic.at(t as f64));
+        }
+        assert!(opened.dynamic_set(6).is_err());
+        assert_eq!(opened.dynamic_counts().unwrap(), vec![100; 6]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -1,10 +1,12 @@
 //! A small synthetic 4D scene for tests and the benchmark: a coloured shell of static
 //! Gaussians around the origin and a ball of dynamic Gaussians that rises over time in
-//! front of the panorama's viewpoint (left of the image centre).
+//! front of the panorama's viewpoint (left of the image centre); and the same as a
+//! version-2 scene, whose ball bobs up and down in a loop.
 
 use glam::DVec3;
 use splat_core::gaussians::{sh_coeffs, GaussianSet, SH_C0};
-use splat_core::ply4d::{CameraInfo, Provenance, Scene4d, SceneMeta};
+use splat_core::ply4d::{CameraInfo, Provenance, Scene4d, SceneMeta, SpacetimeScene4d};
+use splat_core::spacetime::{SpacetimeSet, TimeModel};
 
 /// Radius of the static shell.
 pub const SHELL_RADIUS: f64 = 5.0;
@@ -134,9 +136,72 @@ pub fn scene(
     }
 }
 
+/// [`scene`] as a version-2 scene looping over `times` frames: the ball of its first
+/// timestamp bobs from z = -0.8 up to +0.8 and back (one position harmonic), its red
+/// flickers (one colour harmonic), and each of its Gaussians is fully present at a centre
+/// time of its own and fades a little away from it.
+pub fn spacetime_scene(
+    static_count: usize,
+    dynamic_count: usize,
+    times: u32,
+    sh_degree: u32,
+    seed: u64,
+) -> SpacetimeScene4d {
+    let mut still = scene(static_count, dynamic_count, 1, sh_degree, seed);
+    let mut ball = still.dynamic.remove(0);
+    let rise = (ball_centre(1, 2).z - ball_centre(0, 2).z) as f32 / 2.0;
+    // z(t) = z₀ + rise − rise·cos(2π·t / times): z₀ at frame 0, z₀ + 2·rise half-way.
+    for mean in &mut ball.means {
+        mean[2] += rise;
+    }
+    let n = ball.len();
+    let model = TimeModel {
+        period: times,
+        colour_harmonics: 1,
+        position_harmonics: 1,
+    };
+    let period = times as f32;
+    still.meta.timestamps = (0..times).map(|t| f64::from(t) / FPS).collect();
+    SpacetimeScene4d {
+        static_set: still.static_set,
+        dynamic: SpacetimeSet {
+            model,
+            canonical: ball,
+            time_centre: (0..n).map(|i| period * i as f32 / n as f32).collect(),
+            // Width `times`: half a loop away from its centre, a Gaussian's logit is 1/8 down.
+            time_log_width: vec![period.ln(); n],
+            // cos₁ (r g b), sin₁ (r g b): red up and down by a tenth.
+            colour_terms: (0..n)
+                .flat_map(|_| [0.1 / SH_C0, 0.0, 0.0, 0.0, 0.0, 0.0])
+                .collect(),
+            // cos₁ (x y z), sin₁ (x y z).
+            position_terms: (0..n)
+                .flat_map(|_| [0.0, 0.0, -rise, 0.0, 0.0, 0.0])
+                .collect(),
+        },
+        meta: still.meta,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spacetime_scene_bobs_its_ball() {
+        let a = spacetime_scene(300, 40, 6, 1, 5);
+        a.dynamic.check().unwrap();
+        assert_eq!(a.meta.timestamps.len(), 6);
+        let still = scene(300, 40, 1, 1, 5);
+        assert_eq!(a.static_set, still.static_set);
+        for (t, z) in [(0.0, -0.8), (3.0, 0.8), (6.0, -0.8)] {
+            let ball = a.dynamic.at(t);
+            for (moved, m) in ball.means.iter().zip(&still.dynamic[0].means) {
+                assert!((moved[2] - m[2] - (z + 0.8)).abs() < 1e-5, "t = {t}");
+                assert_eq!(moved[..2], m[..2]);
+            }
+        }
+    }
 
     #[test]
     fn scene_is_valid_and_deterministic() {

@@ -58,6 +58,33 @@ fn headless_render_writes_the_view_at_the_chosen_time() {
 }
 
 #[test]
+fn headless_render_of_a_version_2_scene() {
+    let dir = temp_dir("render-v2");
+    let scene = dir.join("scene.ply4d");
+    ply4d::write_spacetime(&scene, &synthetic::spacetime_scene(2_000, 400, 4, 0, 2)).unwrap();
+    let render = |frame: &str| {
+        let out = dir.join(format!("t{frame}.png"));
+        let result = view()
+            .arg(&scene)
+            .args(["--headless", "--size", "96x64", "--frame", frame, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr).to_string();
+        (result.status.success(), stderr, out)
+    };
+    let (ok, stderr, first) = render("0");
+    assert!(ok, "{stderr}");
+    let (ok, stderr, half_way) = render("2");
+    assert!(ok, "{stderr}");
+    let [first, half_way] = [first, half_way].map(|p| image::open(p).unwrap().to_rgba8());
+    assert_ne!(first, half_way, "the ball bobs between timestamps");
+    let (ok, stderr, _) = render("4");
+    assert!(!ok && stderr.contains("out of range"), "{stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn bad_input_fails_with_a_message() {
     let dir = temp_dir("bad");
     let scene = dir.join("scene.ply4d");

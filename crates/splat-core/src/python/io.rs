@@ -1,14 +1,14 @@
 //! `.ply` and `.ply4d` I/O for Python (`pano4d.ply4d` wraps these).
 //!
-//! Gaussian sets cross as `GaussianArrays` (python/gaussians.rs). Format errors raise
-//! ValueError, OS errors OSError.
+//! Gaussian sets cross as `GaussianArrays`, spacetime sets as `SpacetimeArrays`
+//! (python/gaussians.rs). Format errors raise ValueError, OS errors OSError.
 
 use std::path::PathBuf;
 
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 
-use super::gaussians::PyGaussianArrays;
+use super::gaussians::{PyGaussianArrays, PySpacetimeArrays};
 use crate::ply::{self, FileError};
 use crate::ply4d::{Ply4dReader, Ply4dWriter, SceneMeta};
 
@@ -37,9 +37,10 @@ fn write_ply(
     py.detach(|| ply::write_ply(&path, set)).map_err(to_py_err)
 }
 
-/// Streams a `.ply4d`: the static set first, then one dynamic set per `push`, then
-/// `finish(meta_json)` with timestamps, fps, camera, provenance and extra as JSON.
-/// A writer closed or dropped before `finish` leaves no file behind.
+/// Streams a `.ply4d`: the static set first, then one dynamic set per `push` (version 1) or
+/// the one spacetime set (`push_spacetime`, version 2), then `finish(meta_json)` with
+/// timestamps, fps, camera, provenance and extra as JSON. A writer closed or dropped before
+/// `finish` leaves no file behind.
 #[pyclass(name = "Ply4dWriter", module = "pano4d._core")]
 struct PyPly4dWriter {
     inner: Option<Ply4dWriter>,
@@ -75,6 +76,17 @@ impl PyPly4dWriter {
         let set = dynamic_set.set();
         let writer = self.writer()?;
         py.detach(|| writer.push(set)).map_err(to_py_err)
+    }
+
+    /// Appends the one spacetime set of a version-2 file.
+    fn push_spacetime(
+        &mut self,
+        py: Python<'_>,
+        spacetime_set: PyRef<'_, PySpacetimeArrays>,
+    ) -> PyResult<()> {
+        let set = spacetime_set.set();
+        let writer = self.writer()?;
+        py.detach(|| writer.push_spacetime(set)).map_err(to_py_err)
     }
 
     fn finish(&mut self, py: Python<'_>, meta_json: &str) -> PyResult<()> {
@@ -120,7 +132,7 @@ impl PyPly4dReader {
         Ok(set.into())
     }
 
-    /// Timestamp `t`'s dynamic set.
+    /// Timestamp `t`'s dynamic set (version 2: the spacetime set evaluated at `t`).
     fn read_dynamic(&self, py: Python<'_>, t: usize) -> PyResult<PyGaussianArrays> {
         let set = py
             .detach(|| self.inner.read_dynamic(t))
@@ -131,6 +143,14 @@ impl PyPly4dReader {
     /// The static set followed by timestamp `t`'s dynamic set.
     fn read_at(&self, py: Python<'_>, t: usize) -> PyResult<PyGaussianArrays> {
         let set = py.detach(|| self.inner.read_at(t)).map_err(to_py_err)?;
+        Ok(set.into())
+    }
+
+    /// The spacetime set of a version-2 file, as stored.
+    fn read_spacetime(&self, py: Python<'_>) -> PyResult<PySpacetimeArrays> {
+        let set = py
+            .detach(|| self.inner.read_spacetime())
+            .map_err(to_py_err)?;
         Ok(set.into())
     }
 

@@ -1,0 +1,218 @@
+"""Spacetime Gaussians: the evaluation's two forms agree, and cross the extension intact.
+
+The reference evaluation is ``SpacetimeGaussians.at`` (torch); the Rust form
+(``spacetime.rs``, what the ``.ply4d`` reader and the viewer evaluate a version-2 file with)
+is reached by writing a version-2 file and reading its dynamic set at each integer
+timestamp. Both must match the values worked out by hand for the opacity's sign, the wrap
+around the loop and the order of the Fourier basis, and each other on random sets.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import torch
+
+from pano4d import ply4d
+from pano4d.extension import (
+    core,
+    gaussian_arrays,
+    gaussians_from,
+    spacetime_arrays,
+    spacetime_from,
+)
+from pano4d.gaussians import Gaussians, sh_coeffs_for_degree
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
+
+Evaluation = Callable[[int], Gaussians]
+
+
+def random_spacetime(n: int, degree: int, model: TimeModel, seed: int) -> SpacetimeGaussians:
+    """``n`` random spacetime Gaussians of ``model``: centres anywhere in the loop (and
+    beyond it), widths from a tenth of a frame to many periods."""
+    gen = torch.Generator().manual_seed(seed)
+
+    def r(*shape: int) -> torch.Tensor:
+        return torch.randn(*shape, generator=gen)
+
+    k = sh_coeffs_for_degree(degree)
+    canonical = Gaussians(r(n, 3) * 3, r(n, 3), r(n, 4), r(n) * 2, r(n, k, 3))
+    return SpacetimeGaussians(
+        model,
+        canonical,
+        time_centre=(torch.rand(n, generator=gen) * 3 - 1) * model.period,
+        time_log_width=torch.empty(n).uniform_(-2.3, 6.0, generator=gen),
+        colour_terms=r(n, 2 * model.colour_harmonics, 3) * 0.3,
+        position_terms=r(n, 2 * model.position_harmonics, 3) * 0.2,
+    )
+
+
+TIME_FIELDS = ("time_centre", "time_log_width", "colour_terms", "position_terms")
+
+
+def assert_bit_equal_spacetime(a: SpacetimeGaussians, b: SpacetimeGaussians) -> None:
+    assert a.model == b.model
+    pairs = [(name, a.canonical.tensors()[name], t) for name, t in b.canonical.tensors().items()]
+    pairs += [(name, getattr(a, name), getattr(b, name)) for name in TIME_FIELDS]
+    for name, ta, tb in pairs:
+        assert ta.dtype == tb.dtype == torch.float32, name
+        assert ta.shape == tb.shape, name
+        assert torch.equal(ta.view(torch.int32), tb.view(torch.int32)), name
+
+
+# --- the extension's form ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def built_extension() -> None:
+    pytest.importorskip("pano4d._core")
+
+
+@pytest.mark.usefixtures("built_extension")
+@pytest.mark.parametrize(("n", "harmonics"), [(0, (1, 1)), (1, (0, 0)), (57, (3, 2))])
+def test_spacetime_arrays_round_trip_bit_exact(n: int, harmonics: tuple[int, int]) -> None:
+    s = random_spacetime(n, 2, TimeModel(14, *harmonics), seed=n)
+    if n:
+        # Values a lossy path would change: subnormal, -0, inf, NaN.
+        s.time_centre[0] = 1e-45
+        s.time_log_width[0] = -0.0
+        s.canonical.opacity_logits[0] = float("inf")
+        s.canonical.means[0, 1] = float("nan")
+    arrays = spacetime_arrays(s)
+    assert len(arrays) == n
+    assert (arrays.period, arrays.colour_harmonics, arrays.position_harmonics) == (14, *harmonics)
+    assert arrays.colour_terms.shape == (n, 2 * harmonics[0], 3)
+    assert_bit_equal_spacetime(spacetime_from(arrays), s)
+
+
+@pytest.mark.usefixtures("built_extension")
+def test_spacetime_arrays_name_what_is_wrong() -> None:
+    good = spacetime_arrays(random_spacetime(4, 0, TimeModel(8, 1, 2), seed=0))
+    fields = {
+        "canonical": good.canonical,
+        "period": 8,
+        "colour_harmonics": 1,
+        "position_harmonics": 2,
+        "time_centre": good.time_centre,
+        "time_log_width": good.time_log_width,
+        "colour_terms": good.colour_terms,
+        "position_terms": good.position_terms,
+    }
+    core.SpacetimeArrays(**fields)  # type: ignore[arg-type]
+    wrong = {
+        "time_centre": good.time_centre[:3],
+        "time_log_width": good.time_log_width[:, None],
+        "colour_terms": good.position_terms,
+        "position_terms": good.colour_terms,
+        "canonical": gaussian_arrays(Gaussians.empty()),
+        "period": -1,
+        "colour_harmonics": 9,
+        "position_harmonics": 2**40,
+    }
+    for name, value in wrong.items():
+        expected = "time_centre" if name == "canonical" else name
+        with pytest.raises(ValueError, match=expected):
+            core.SpacetimeArrays(**{**fields, name: value})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="period"):
+        core.SpacetimeArrays(**{**fields, "period": 0})  # type: ignore[arg-type]
+
+
+# --- the two forms of the evaluation ---------------------------------------------------
+
+
+def rust_evaluation(s: SpacetimeGaussians, folder: Path) -> Evaluation:
+    """``s`` evaluated by the Rust reader: written as a version-2 file (no static set), its
+    dynamic set read back at integer timestamps."""
+    pytest.importorskip("pano4d._core")
+    path = folder / "twin.ply4d"
+    times = [t / 8 for t in range(s.model.period)]
+    ply4d.write(path, ply4d.Scene4D(Gaussians.empty(s.canonical.sh_degree), s, times, 8.0))
+    reader = core.Ply4dReader(str(path))
+    return lambda t: gaussians_from(reader.read_dynamic(t))
+
+
+def evaluation(form: str, s: SpacetimeGaussians, folder: Path) -> Evaluation:
+    return s.at if form == "torch" else rust_evaluation(s, folder)
+
+
+def assert_close(got: Gaussians, want: Gaussians, what: str) -> None:
+    for name, tensor in want.tensors().items():
+        torch.testing.assert_close(
+            got.tensors()[name], tensor, rtol=1e-5, atol=1e-5,
+            msg=lambda m, name=name: f"{what}, {name}: {m}",
+        )  # fmt: skip
+
+
+@pytest.mark.parametrize("form", ["torch", "rust"])
+def test_known_values_pin_the_opacity_sign_the_wrap_and_the_basis(
+    form: str, tmp_path: Path
+) -> None:
+    """A loop of 8 frames. Gaussian 0: centre 0, width 1; Gaussian 1: centre 7.5, width 2.
+    Both: red + 1·cos, green + 2·sin, z + 3·cos, x + 4·sin (u = 2π·t / 8)."""
+    model = TimeModel(period=8, colour_harmonics=1, position_harmonics=1)
+    zeros = torch.zeros
+    canonical = Gaussians(zeros(2, 3), zeros(2, 3), torch.tensor([[1.0, 0, 0, 0]] * 2),
+                          zeros(2), zeros(2, 1, 3))  # fmt: skip
+    colour, position = zeros(2, 2, 3), zeros(2, 2, 3)
+    colour[:, 0, 0], colour[:, 1, 1] = 1.0, 2.0  # cos₁ of red, sin₁ of green
+    position[:, 0, 2], position[:, 1, 0] = 3.0, 4.0  # cos₁ of z, sin₁ of x
+    s = SpacetimeGaussians(
+        model, canonical, torch.tensor([0.0, 7.5]), torch.tensor([0.0, math.log(2.0)]),
+        colour, position,
+    )  # fmt: skip
+    at = evaluation(form, s, tmp_path)
+    # Opacity falls away from the centre time: one frame off at width 1 is −½ (not +½).
+    assert at(1).opacity_logits[0] == -0.5
+    # Frame 7 is one frame before frame 0 around the loop, not seven after it.
+    assert at(7).opacity_logits[0] == -0.5
+    # Half a loop away is the farthest: −½·4².
+    assert at(4).opacity_logits[0] == -8.0
+    # Centre 7.5 is half a frame before frame 0 (the loop's seam): −½·(0.5 / 2)².
+    assert at(0).opacity_logits[1] == -0.03125
+    # Frame 3 is 3.5 frames after it around the loop, not 4.5 before: −½·(3.5 / 2)².
+    assert at(3).opacity_logits[1] == -1.53125
+    # cos₁ then sin₁: at frame 0 the cosine terms, a quarter loop on the sine terms.
+    torch.testing.assert_close(at(0).sh[0, 0], torch.tensor([1.0, 0.0, 0.0]))
+    torch.testing.assert_close(at(0).means[0], torch.tensor([0.0, 0.0, 3.0]))
+    torch.testing.assert_close(at(2).sh[0, 0], torch.tensor([0.0, 2.0, 0.0]))
+    torch.testing.assert_close(at(2).means[0], torch.tensor([4.0, 0.0, 0.0]))
+
+
+def extreme_spacetime(model: TimeModel, seed: int) -> SpacetimeGaussians:
+    """A random set whose first Gaussians sit at the extremes: centres on the loop's seam
+    (half a period from frame 0, either side), on frames 0 and period − 1, a loop or many
+    away; widths from e⁻²⁰ frames (present only at its centre) to e³⁰ (always)."""
+    s = random_spacetime(200, 1, model, seed)
+    p = float(model.period)
+    centres = [p / 2, -p / 2, p / 2 + 1e-3, p / 2 - 1e-3, 0.0, p - 1, p, -p, 1e4, -3.5 * p]
+    s.time_centre[: len(centres)] = torch.tensor(centres)
+    widths = [-20.0, -5.0, -1.0, 0.0, 1.0, 5.0, 10.0, 30.0]
+    s.time_log_width[20 : 20 + len(widths)] = torch.tensor(widths)
+    s.time_centre[20 : 20 + len(widths)] = p / 2
+    return s
+
+
+MODELS = [TimeModel(1, 0, 0), TimeModel(2, 1, 0), TimeModel(7, 0, 3), TimeModel(14, 2, 1),
+          TimeModel(5, 8, 8)]  # fmt: skip
+
+
+@pytest.mark.parametrize("model", MODELS, ids=str)
+def test_the_rust_evaluation_is_the_torch_reference(model: TimeModel, tmp_path: Path) -> None:
+    s = extreme_spacetime(model, seed=model.period)
+    rust = rust_evaluation(s, tmp_path)
+    for t in range(model.period):
+        assert_close(rust(t), s.at(t), f"frame {t} of {model}")
+    with pytest.raises(ValueError, match="out of range"):
+        rust(model.period)
+
+
+@pytest.mark.parametrize("model", MODELS, ids=str)
+def test_the_loop_closes(model: TimeModel) -> None:
+    s = extreme_spacetime(model, seed=1)
+    p = model.period
+    for t in {0, p // 2, p - 1}:
+        assert_close(s.at(t + p), s.at(t), f"frame {t} + one loop")
+        assert_close(s.at(t - 3 * p), s.at(t), f"frame {t} − three loops")
