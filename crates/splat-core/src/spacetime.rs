@@ -11,6 +11,12 @@ use crate::gaussians::{sh_coeffs, GaussianSet};
 /// Most Fourier terms a time model may have per quantity (a hostile file's bound).
 pub const MAX_HARMONICS: u32 = 8;
 
+/// The narrowest presence the trainers let a Gaussian have, in frames: the resident
+/// trainer's Adam holds each log-width at ≥ ln(MIN_WIDTH_FRAMES) (train/adam.wgsl).
+/// Mirrors `pano4d.spacetime.MIN_WIDTH_FRAMES`, the torch trainer's (the trainers' equality
+/// test in tests/test_spacetime_train.py starts Gaussians below it in both).
+pub const MIN_WIDTH_FRAMES: f32 = 1.5;
+
 /// The form of every Gaussian's function of time in one scene.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct TimeModel {
@@ -37,6 +43,12 @@ impl TimeModel {
             }
         }
         Ok(())
+    }
+
+    /// Time parameters per Gaussian: its centre time and log-width, then three values
+    /// (x, y, z or r, g, b) per Fourier term of its colour and of its mean.
+    pub fn floats_per_gaussian(&self) -> usize {
+        2 + 6 * (self.colour_harmonics + self.position_harmonics) as usize
     }
 
     /// cos(h·u), sin(h·u) for h = 1..=harmonics (cos₁, sin₁, cos₂, …), u = 2π·t / period,
@@ -89,30 +101,18 @@ impl SpacetimeSet {
 
     /// Why the arrays do not fit together, if they do not.
     pub fn check(&self) -> Result<(), String> {
-        self.model.check()?;
-        let n = self.len();
-        let m = &self.model;
-        for (name, got, want) in [
-            ("time_centre", self.time_centre.len(), n),
-            ("time_log_width", self.time_log_width.len(), n),
-            (
-                "colour_terms",
-                self.colour_terms.len(),
-                n * 6 * m.colour_harmonics as usize,
-            ),
-            (
-                "position_terms",
-                self.position_terms.len(),
-                n * 6 * m.position_harmonics as usize,
-            ),
-        ] {
-            if got != want {
-                return Err(format!(
-                    "spacetime set of {n} Gaussians: {name} has {got} values, expected {want}"
-                ));
-            }
+        self.time_input().check(self.len())
+    }
+
+    /// The time parameters, borrowed.
+    pub fn time_input(&self) -> TimeInput<'_> {
+        TimeInput {
+            model: self.model,
+            time_centre: &self.time_centre,
+            time_log_width: &self.time_log_width,
+            colour_terms: &self.colour_terms,
+            position_terms: &self.position_terms,
         }
-        Ok(())
     }
 
     /// The Gaussians at time `t` (frames; any real value, taken modulo the period).
@@ -137,5 +137,56 @@ impl SpacetimeSet {
             g.opacity_logits[n] -= 0.5 * z * z;
         }
         g
+    }
+}
+
+/// A spacetime set's time parameters, borrowed (its canonical Gaussians borrow as a
+/// [`crate::gaussians::SceneInput`]): what a training session takes of one.
+#[derive(Clone, Copy, Debug)]
+pub struct TimeInput<'a> {
+    pub model: TimeModel,
+    pub time_centre: &'a [f32],
+    pub time_log_width: &'a [f32],
+    pub colour_terms: &'a [f32],
+    pub position_terms: &'a [f32],
+}
+
+impl TimeInput<'_> {
+    /// The arrays in the order of a trained set's time sections (after its Gaussians'):
+    /// centres, log-widths, colour terms, position terms.
+    pub fn sections(&self) -> [&[f32]; 4] {
+        [
+            self.time_centre,
+            self.time_log_width,
+            self.colour_terms,
+            self.position_terms,
+        ]
+    }
+
+    /// Why these are not the time parameters of `n` Gaussians, if they are not.
+    pub fn check(&self, n: usize) -> Result<(), String> {
+        let m = &self.model;
+        m.check()?;
+        for (name, got, want) in [
+            ("time_centre", self.time_centre.len(), n),
+            ("time_log_width", self.time_log_width.len(), n),
+            (
+                "colour_terms",
+                self.colour_terms.len(),
+                n * 6 * m.colour_harmonics as usize,
+            ),
+            (
+                "position_terms",
+                self.position_terms.len(),
+                n * 6 * m.position_harmonics as usize,
+            ),
+        ] {
+            if got != want {
+                return Err(format!(
+                    "spacetime set of {n} Gaussians: {name} has {got} values, expected {want}"
+                ));
+            }
+        }
+        Ok(())
     }
 }
