@@ -47,6 +47,43 @@ class GaussianArrays:
     def sh_degree(self) -> int: ...
     def __len__(self) -> int: ...
 
+class SpacetimeArrays:
+    """N spacetime Gaussians (``pano4d.spacetime.SpacetimeGaussians``), float32, copied in."""
+
+    def __init__(
+        self,
+        *,
+        canonical: GaussianArrays,
+        period: int,
+        colour_harmonics: int,
+        position_harmonics: int,
+        time_centre: _F32,
+        time_log_width: _F32,
+        colour_terms: _F32,
+        position_terms: _F32,
+    ) -> None: ...
+    @property
+    def canonical(self) -> GaussianArrays: ...
+    @property
+    def period(self) -> int: ...
+    @property
+    def colour_harmonics(self) -> int: ...
+    @property
+    def position_harmonics(self) -> int: ...
+    @property
+    def time_centre(self) -> _F32:
+        """(N,)"""
+    @property
+    def time_log_width(self) -> _F32:
+        """(N,)"""
+    @property
+    def colour_terms(self) -> _F32:
+        """(N, 2·colour_harmonics, 3)"""
+    @property
+    def position_terms(self) -> _F32:
+        """(N, 2·position_harmonics, 3)"""
+    def __len__(self) -> int: ...
+
 # --- rendering (python/raster.rs) ------------------------------------------------------------
 class View:
     """A pinhole camera: K (3×3) and world-to-camera rows (3×4 or 4×4), float64."""

@@ -6,7 +6,8 @@ file formats (``pano4d.ply4d``).
 so ``import pano4d`` works without it (the torch rasteriser and the torch trainer need
 none). Across it everything is a typed object: a camera crosses as ``_core.View``
 (:func:`view`), a Gaussian set as ``_core.GaussianArrays`` (:func:`gaussian_arrays`,
-:func:`gaussians_from`).
+:func:`gaussians_from`), a spacetime set as ``_core.SpacetimeArrays``
+(:func:`spacetime_arrays`, :func:`spacetime_from`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import torch
 
 from pano4d.camera import Camera
 from pano4d.gaussians import Gaussians
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 
 
 class _Extension:
@@ -51,9 +53,14 @@ else:
     core = _Extension()
 
 
+def host(t: torch.Tensor) -> np.ndarray:
+    """A tensor as the extension takes it: contiguous float32 on the host, its shape kept."""
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
+
+
 def flat(t: torch.Tensor) -> np.ndarray:
-    """A tensor as the extension takes it: contiguous float32 on the host, one dimension."""
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).reshape(-1).numpy())
+    """:func:`host` in one dimension."""
+    return host(t.reshape(-1))
 
 
 def view(camera: Camera) -> core.View:
@@ -85,4 +92,37 @@ def gaussians_from(arrays: core.GaussianArrays, device: torch.device | str = "cp
             "sh": arrays.sh,
         },
         device,
+    )
+
+
+def spacetime_arrays(s: SpacetimeGaussians) -> core.SpacetimeArrays:
+    """``s`` as the extension holds a spacetime set: float32 on the host."""
+    m = s.model
+    return core.SpacetimeArrays(
+        canonical=gaussian_arrays(s.canonical),
+        period=m.period,
+        colour_harmonics=m.colour_harmonics,
+        position_harmonics=m.position_harmonics,
+        time_centre=host(s.time_centre),
+        time_log_width=host(s.time_log_width),
+        colour_terms=host(s.colour_terms),
+        position_terms=host(s.position_terms),
+    )
+
+
+def spacetime_from(
+    arrays: core.SpacetimeArrays, device: torch.device | str = "cpu"
+) -> SpacetimeGaussians:
+    """The inverse of :func:`spacetime_arrays`, on ``device``."""
+
+    def tensor(values: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(values).to(device)
+
+    return SpacetimeGaussians(
+        TimeModel(arrays.period, arrays.colour_harmonics, arrays.position_harmonics),
+        gaussians_from(arrays.canonical, device),
+        time_centre=tensor(arrays.time_centre),
+        time_log_width=tensor(arrays.time_log_width),
+        colour_terms=tensor(arrays.colour_terms),
+        position_terms=tensor(arrays.position_terms),
     )

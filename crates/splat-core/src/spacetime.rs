@@ -32,7 +32,10 @@ impl TimeModel {
     /// Why this model cannot be, if it cannot.
     pub fn check(&self) -> Result<(), String> {
         if self.period < 1 {
-            return Err(format!("a loop's period must be ≥ 1 frame, got {}", self.period));
+            return Err(format!(
+                "a loop's period must be ≥ 1 frame, got {}",
+                self.period
+            ));
         }
         for (name, h) in [
             ("colour_harmonics", self.colour_harmonics),

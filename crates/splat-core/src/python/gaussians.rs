@@ -1,10 +1,12 @@
 //! `GaussianArrays`: the one form in which a Gaussian set crosses between Python and Rust
 //! (rendering, training, `.ply` and `.ply4d`), and gradients or Adam moments of one, which
-//! have the same shapes.
+//! have the same shapes; `SpacetimeArrays`: the one form a spacetime set crosses in (its
+//! canonical `GaussianArrays`, time model and time parameters).
 //!
 //! Built by keyword from float32 numpy arrays with the shapes of `pano4d.gaussians.Gaussians`
-//! (means (N, 3), log_scales (N, 3), quats (N, 4), opacity_logits (N,), sh (N, K, 3)) and
-//! read back by name; `pano4d.extension` converts it to and from `Gaussians`.
+//! (means (N, 3), log_scales (N, 3), quats (N, 4), opacity_logits (N,), sh (N, K, 3)) or
+//! `pano4d.spacetime.SpacetimeGaussians` and read back by name; `pano4d.extension` converts
+//! them to and from `Gaussians` and `SpacetimeGaussians`.
 
 use numpy::prelude::*;
 use numpy::{PyArray1, PyArrayDyn, PyReadonlyArrayDyn};
@@ -12,6 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::gaussians::{sh_coeffs, GaussianSet, SceneInput};
+use crate::spacetime::{SpacetimeSet, TimeModel};
 
 /// N Gaussians in the 3DGS parameterisation, held by the extension (a [`GaussianSet`]).
 #[pyclass(name = "GaussianArrays", module = "pano4d._core", frozen)]
@@ -175,6 +178,157 @@ impl PyGaussianArrays {
     }
 }
 
+/// N spacetime Gaussians (canonical parameters, time model, time parameters), held by the
+/// extension (a [`SpacetimeSet`]).
+#[pyclass(name = "SpacetimeArrays", module = "pano4d._core", frozen)]
+pub struct PySpacetimeArrays {
+    set: SpacetimeSet,
+}
+
+impl From<SpacetimeSet> for PySpacetimeArrays {
+    fn from(set: SpacetimeSet) -> Self {
+        Self { set }
+    }
+}
+
+/// `value` as a count of the time model, or a ValueError naming `name`.
+fn model_count(name: &str, value: i64) -> PyResult<u32> {
+    u32::try_from(value).map_err(|_| {
+        PyValueError::new_err(format!(
+            "'{name}' must be a whole number in 0..2^32, got {value}"
+        ))
+    })
+}
+
+#[pymethods]
+impl PySpacetimeArrays {
+    /// The time arrays are float32 of any memory layout, with the shapes of
+    /// `SpacetimeGaussians`: time_centre and time_log_width (N,), colour_terms
+    /// (N, 2·colour_harmonics, 3), position_terms (N, 2·position_harmonics, 3), N the
+    /// canonical set's length. The values are copied.
+    #[new]
+    #[pyo3(signature = (
+        *, canonical, period, colour_harmonics, position_harmonics,
+        time_centre, time_log_width, colour_terms, position_terms,
+    ))]
+    #[allow(clippy::too_many_arguments)] // keyword-only, one per field
+    fn new(
+        canonical: PyRef<'_, PyGaussianArrays>,
+        period: i64,
+        colour_harmonics: i64,
+        position_harmonics: i64,
+        time_centre: PyReadonlyArrayDyn<'_, f32>,
+        time_log_width: PyReadonlyArrayDyn<'_, f32>,
+        colour_terms: PyReadonlyArrayDyn<'_, f32>,
+        position_terms: PyReadonlyArrayDyn<'_, f32>,
+    ) -> PyResult<Self> {
+        let model = TimeModel {
+            period: model_count("period", period)?,
+            colour_harmonics: model_count("colour_harmonics", colour_harmonics)?,
+            position_harmonics: model_count("position_harmonics", position_harmonics)?,
+        };
+        model.check().map_err(PyValueError::new_err)?;
+        let n = canonical.set.len();
+        let terms = |h: u32| [Some(n), Some(2 * h as usize), Some(3)];
+        let (_, time_centre) = values("time_centre", &time_centre, &[Some(n)])?;
+        let (_, time_log_width) = values("time_log_width", &time_log_width, &[Some(n)])?;
+        let (_, colour_terms) = values(
+            "colour_terms",
+            &colour_terms,
+            &terms(model.colour_harmonics),
+        )?;
+        let (_, position_terms) = values(
+            "position_terms",
+            &position_terms,
+            &terms(model.position_harmonics),
+        )?;
+        Ok(Self {
+            set: SpacetimeSet {
+                model,
+                canonical: canonical.set.clone(),
+                time_centre,
+                time_log_width,
+                colour_terms,
+                position_terms,
+            },
+        })
+    }
+
+    /// The Gaussians at no displacement and full presence.
+    #[getter]
+    fn canonical(&self) -> PyGaussianArrays {
+        self.set.canonical.clone().into()
+    }
+
+    /// Frames per loop.
+    #[getter]
+    fn period(&self) -> u32 {
+        self.set.model.period
+    }
+
+    #[getter]
+    fn colour_harmonics(&self) -> u32 {
+        self.set.model.colour_harmonics
+    }
+
+    #[getter]
+    fn position_harmonics(&self) -> u32 {
+        self.set.model.position_harmonics
+    }
+
+    /// (N,)
+    #[getter]
+    fn time_centre<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        shaped(py, self.set.time_centre.clone(), &[self.set.len()])
+    }
+
+    /// (N,)
+    #[getter]
+    fn time_log_width<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        shaped(py, self.set.time_log_width.clone(), &[self.set.len()])
+    }
+
+    /// (N, 2·colour_harmonics, 3)
+    #[getter]
+    fn colour_terms<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let terms = 2 * self.set.model.colour_harmonics as usize;
+        shaped(
+            py,
+            self.set.colour_terms.clone(),
+            &[self.set.len(), terms, 3],
+        )
+    }
+
+    /// (N, 2·position_harmonics, 3)
+    #[getter]
+    fn position_terms<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let terms = 2 * self.set.model.position_harmonics as usize;
+        shaped(
+            py,
+            self.set.position_terms.clone(),
+            &[self.set.len(), terms, 3],
+        )
+    }
+
+    fn __len__(&self) -> usize {
+        self.set.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let m = &self.set.model;
+        format!(
+            "SpacetimeArrays(<{} Gaussians of SH degree {}, period {}, harmonics colour {} \
+             position {}>)",
+            self.set.len(),
+            self.set.canonical.sh_degree,
+            m.period,
+            m.colour_harmonics,
+            m.position_harmonics
+        )
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PyGaussianArrays>()
+    m.add_class::<PyGaussianArrays>()?;
+    m.add_class::<PySpacetimeArrays>()
 }
