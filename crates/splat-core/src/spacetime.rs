@@ -107,6 +107,24 @@ impl SpacetimeSet {
         self.time_input().check(self.len())
     }
 
+    /// `n` Gaussians of `sh_degree` and `model` from their packed parameters: the
+    /// canonical Gaussians as [`crate::gaussians::SceneInput::packed`], then the time
+    /// sections in [`TimeInput::sections`]' order (a training session's layout).
+    pub fn from_packed(packed: &[f32], n: usize, sh_degree: u32, model: TimeModel) -> Self {
+        let (canonical, time) = packed.split_at(packed.len() - n * model.floats_per_gaussian());
+        let (time_centre, rest) = time.split_at(n);
+        let (time_log_width, rest) = rest.split_at(n);
+        let (colour_terms, position_terms) = rest.split_at(n * 6 * model.colour_harmonics as usize);
+        Self {
+            model,
+            canonical: GaussianSet::from_packed(canonical, n, sh_degree),
+            time_centre: time_centre.to_vec(),
+            time_log_width: time_log_width.to_vec(),
+            colour_terms: colour_terms.to_vec(),
+            position_terms: position_terms.to_vec(),
+        }
+    }
+
     /// The time parameters, borrowed.
     pub fn time_input(&self) -> TimeInput<'_> {
         TimeInput {

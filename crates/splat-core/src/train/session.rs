@@ -532,7 +532,11 @@ impl TrainSession {
 
     /// The evaluate pass and its adjoint, of a session that trains a spacetime set.
     fn kernels(&self) -> &EvaluateKernels {
-        &self.motion.as_ref().expect("a spacetime set's session").kernels
+        &self
+            .motion
+            .as_ref()
+            .expect("a spacetime set's session")
+            .kernels
     }
 
     /// The time model of the spacetime set the session trains (None: a set of Gaussians).
@@ -615,7 +619,12 @@ impl TrainSession {
         if let Some(count) = t.grad_count {
             self.upload(&stats, 4 * n as u64, bytemuck::cast_slice(count));
         }
-        let time_grads = fresh("time gradients", self.time_floats() as usize * nn, None, self);
+        let time_grads = fresh(
+            "time gradients",
+            self.time_floats() as usize * nn,
+            None,
+            self,
+        );
         self.trained = Trained {
             len: n,
             params,
@@ -1004,7 +1013,11 @@ impl TrainSession {
         for buffer in renders {
             let mut at = 0;
             for width in section_widths(self.sh_coeffs) {
-                regions.push(((*buffer).clone(), 4 * (at + width * n_static), 4 * width * n));
+                regions.push((
+                    (*buffer).clone(),
+                    4 * (at + width * n_static),
+                    4 * width * n,
+                ));
                 at += width * (n_static + n);
             }
         }
