@@ -45,11 +45,14 @@ def _render_wgpu(g: Gaussians, camera: Any, background: Any = None) -> RenderOut
 
 def _with_time(g: Gaussians, seed: int, model: TimeModel = MODEL) -> SpacetimeGaussians:
     """``g`` with random time parameters: centres anywhere in the loop, widths of 1.5 to 6
-    frames (each Gaussian fades within the loop), colour waves of a tenth of the DC and
-    position waves of a percent of the distance."""
+    frames (each Gaussian fades within the loop), colour waves of up to a tenth of the DC's
+    unit and position waves of up to 0.04 (a percent of the sphere problem's radius)."""
     gen = torch.Generator().manual_seed(seed)
     n = len(g)
-    rand = lambda *shape: torch.rand(*shape, generator=gen)  # noqa: E731
+
+    def rand(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=gen)
+
     return SpacetimeGaussians(
         model,
         g,
@@ -125,13 +128,12 @@ def test_views_and_times_must_pair_up() -> None:
 
 
 def test_the_torch_trainer_trains_every_time_parameter_and_holds_the_width_floor() -> None:
-    """A step draws the set at its view's time and moves every parameter, the time ones
-    included (each by about its learning rate: Adam's first step); the result is a
-    spacetime set of the same model. A width below the floor is lifted to it, one above
-    it is left free."""
+    """A step draws the set at its view's time and moves every time parameter (finite
+    gradients); the result is a spacetime set of the same model. A width below the floor
+    is lifted to it, one above it is left free."""
     s, views = _problem()
     s.time_log_width[:4] = math.log(0.5 * MIN_WIDTH_FRAMES)
-    s.time_centre[:4] = 0.0  # narrow, and at the times of the views at 0.5 and 5.25
+    s.time_centre[:4] = 0.0  # narrow, centred between the views at 5.25 and 0.5 (the seam)
     knobs = Knobs(iterations=1)
     trainer = GaussianTrainer(s, views, knobs, _render_torch, seed=0)
     trainer.train_step()
