@@ -317,7 +317,13 @@ def test_the_template_names_every_knob() -> None:
 
 @pytest.mark.parametrize(
     "override",
-    ["later_iteration_share: 0.3", "stop_when_converged: true", "dynamic_windows: false"],
+    [
+        "later_iteration_share: 0.3",
+        "stop_when_converged: true",
+        "dynamic_windows: false",
+        "lr_time_centre: 0.02",
+        "lr_time_width: 0.01",
+    ],
 )
 def test_a_dynamic_only_knob_keeps_the_stages_before_the_dynamic_one(
     scene_dir: Path, override: str

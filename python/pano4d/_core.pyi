@@ -203,6 +203,7 @@ class ViewTarget:
         outside_sums: Sequence[float],
         depth: _F32 | None = None,
         previous: _F32 | None = None,
+        time: float = 0.0,
     ) -> None: ...
 
 class LossParts:
@@ -243,12 +244,14 @@ class Traffic:
     def read_back(self) -> int: ...
 
 class TrainState:
+    """The kind of set the session trains: GaussianArrays or SpacetimeArrays."""
+
     @property
-    def params(self) -> GaussianArrays: ...
+    def params(self) -> GaussianArrays | SpacetimeArrays: ...
     @property
-    def exp_avg(self) -> GaussianArrays: ...
+    def exp_avg(self) -> GaussianArrays | SpacetimeArrays: ...
     @property
-    def exp_avg_sq(self) -> GaussianArrays: ...
+    def exp_avg_sq(self) -> GaussianArrays | SpacetimeArrays: ...
     @property
     def unit(self) -> _F32: ...
     @property
@@ -263,7 +266,7 @@ class TrainSession:
         self,
         *,
         static_set: GaussianArrays,
-        trained: GaussianArrays,
+        trained: GaussianArrays | SpacetimeArrays,
         unit: _F32,
         views: Sequence[ViewTarget],
         settings: TrainSettings,
@@ -282,15 +285,18 @@ class TrainSession:
     def check_frames(self) -> FrameCheck: ...
     def loss(self) -> LossParts: ...
     def state(self) -> TrainState: ...
-    def params(self) -> GaussianArrays: ...
+    def params(self) -> GaussianArrays | SpacetimeArrays: ...
+    def parameter_gradient(
+        self, scene_gradient: GaussianArrays | None = None
+    ) -> GaussianArrays | SpacetimeArrays: ...
     def scene(self) -> GaussianArrays: ...
     def set_trained(
         self,
         *,
-        trained: GaussianArrays,
+        trained: GaussianArrays | SpacetimeArrays,
         unit: _F32,
-        exp_avg: GaussianArrays | None = None,
-        exp_avg_sq: GaussianArrays | None = None,
+        exp_avg: GaussianArrays | SpacetimeArrays | None = None,
+        exp_avg_sq: GaussianArrays | SpacetimeArrays | None = None,
         grad_accum: _F32 | None = None,
         grad_count: _F32 | None = None,
         adam_steps: int = 0,

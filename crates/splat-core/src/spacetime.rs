@@ -11,6 +11,12 @@ use crate::gaussians::{sh_coeffs, GaussianSet};
 /// Most Fourier terms a time model may have per quantity (a hostile file's bound).
 pub const MAX_HARMONICS: u32 = 8;
 
+/// The narrowest presence the trainers let a Gaussian have, in frames: the resident
+/// trainer's Adam holds each log-width at ≥ ln(MIN_WIDTH_FRAMES) (train/adam.wgsl).
+/// Mirrors `pano4d.spacetime.MIN_WIDTH_FRAMES`, the torch trainer's (the trainers' equality
+/// test in tests/test_spacetime_train.py starts Gaussians below it in both).
+pub const MIN_WIDTH_FRAMES: f32 = 1.5;
+
 /// The form of every Gaussian's function of time in one scene.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct TimeModel {
@@ -40,6 +46,12 @@ impl TimeModel {
             }
         }
         Ok(())
+    }
+
+    /// Time parameters per Gaussian: its centre time and log-width, then three values
+    /// (x, y, z or r, g, b) per Fourier term of its colour and of its mean.
+    pub fn floats_per_gaussian(&self) -> usize {
+        2 + 6 * (self.colour_harmonics + self.position_harmonics) as usize
     }
 
     /// cos(h·u), sin(h·u) for h = 1..=harmonics (cos₁, sin₁, cos₂, …), u = 2π·t / period,
@@ -92,30 +104,36 @@ impl SpacetimeSet {
 
     /// Why the arrays do not fit together, if they do not.
     pub fn check(&self) -> Result<(), String> {
-        self.model.check()?;
-        let n = self.len();
-        let m = &self.model;
-        for (name, got, want) in [
-            ("time_centre", self.time_centre.len(), n),
-            ("time_log_width", self.time_log_width.len(), n),
-            (
-                "colour_terms",
-                self.colour_terms.len(),
-                n * 6 * m.colour_harmonics as usize,
-            ),
-            (
-                "position_terms",
-                self.position_terms.len(),
-                n * 6 * m.position_harmonics as usize,
-            ),
-        ] {
-            if got != want {
-                return Err(format!(
-                    "spacetime set of {n} Gaussians: {name} has {got} values, expected {want}"
-                ));
-            }
+        self.time_input().check(self.len())
+    }
+
+    /// `n` Gaussians of `sh_degree` and `model` from their packed parameters: the
+    /// canonical Gaussians as [`crate::gaussians::SceneInput::packed`], then the time
+    /// sections in [`TimeInput::sections`]' order (a training session's layout).
+    pub fn from_packed(packed: &[f32], n: usize, sh_degree: u32, model: TimeModel) -> Self {
+        let (canonical, time) = packed.split_at(packed.len() - n * model.floats_per_gaussian());
+        let (time_centre, rest) = time.split_at(n);
+        let (time_log_width, rest) = rest.split_at(n);
+        let (colour_terms, position_terms) = rest.split_at(n * 6 * model.colour_harmonics as usize);
+        Self {
+            model,
+            canonical: GaussianSet::from_packed(canonical, n, sh_degree),
+            time_centre: time_centre.to_vec(),
+            time_log_width: time_log_width.to_vec(),
+            colour_terms: colour_terms.to_vec(),
+            position_terms: position_terms.to_vec(),
         }
-        Ok(())
+    }
+
+    /// The time parameters, borrowed.
+    pub fn time_input(&self) -> TimeInput<'_> {
+        TimeInput {
+            model: self.model,
+            time_centre: &self.time_centre,
+            time_log_width: &self.time_log_width,
+            colour_terms: &self.colour_terms,
+            position_terms: &self.position_terms,
+        }
     }
 
     /// The Gaussians at time `t` (frames; any real value, taken modulo the period).
@@ -140,6 +158,57 @@ impl SpacetimeSet {
             g.opacity_logits[n] -= 0.5 * z * z;
         }
         g
+    }
+}
+
+/// A spacetime set's time parameters, borrowed (its canonical Gaussians borrow as a
+/// [`crate::gaussians::SceneInput`]): what a training session takes of one.
+#[derive(Clone, Copy, Debug)]
+pub struct TimeInput<'a> {
+    pub model: TimeModel,
+    pub time_centre: &'a [f32],
+    pub time_log_width: &'a [f32],
+    pub colour_terms: &'a [f32],
+    pub position_terms: &'a [f32],
+}
+
+impl TimeInput<'_> {
+    /// The arrays in the order of a trained set's time sections (after its Gaussians'):
+    /// centres, log-widths, colour terms, position terms.
+    pub fn sections(&self) -> [&[f32]; 4] {
+        [
+            self.time_centre,
+            self.time_log_width,
+            self.colour_terms,
+            self.position_terms,
+        ]
+    }
+
+    /// Why these are not the time parameters of `n` Gaussians, if they are not.
+    pub fn check(&self, n: usize) -> Result<(), String> {
+        let m = &self.model;
+        m.check()?;
+        for (name, got, want) in [
+            ("time_centre", self.time_centre.len(), n),
+            ("time_log_width", self.time_log_width.len(), n),
+            (
+                "colour_terms",
+                self.colour_terms.len(),
+                n * 6 * m.colour_harmonics as usize,
+            ),
+            (
+                "position_terms",
+                self.position_terms.len(),
+                n * 6 * m.position_harmonics as usize,
+            ),
+        ] {
+            if got != want {
+                return Err(format!(
+                    "spacetime set of {n} Gaussians: {name} has {got} values, expected {want}"
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

@@ -15,30 +15,68 @@ centre render and the moved render are read back, the feature model runs in torc
 moved render's pixel gradient is uploaded and back-propagated on the device. It runs on every
 step (``sem_every = 1``, as the torch trainer) unless ``sem_every`` is raised.
 
+A spacetime set (``pano4d.spacetime``) is drawn at each step's view time by the device's
+evaluate pass, whose adjoint carries the gradient to its time parameters (splat-core's
+``train/evaluate.rs``); Adam updates every parameter there and holds the log-widths at the
+torch trainer's floor. Its state comes back as a spacetime set too.
+
 ``ResidentTrainer`` has ``GaussianTrainer``'s constructor less ``render_fn`` (renders
 happen on the device) and its public methods, so a lifting stage can use either. Its knobs
 reach the device as one typed object, ``pano4d._core.TrainSettings`` (``train_settings``).
 ``train_step`` returns the last loss read back, which is up to ``LOSS_EVERY − 1`` steps old.
 
 Everything crosses to the device as a typed object (``pano4d._core``'s stub lists them):
-each view's targets as a ``ViewTarget``, the static and trained sets, Adam's moments and
-gradients as ``GaussianArrays`` (``pano4d.extension``), and the loss comes back as
-``LossParts``, read by name.
+each view's targets as a ``ViewTarget``, the static set as ``GaussianArrays``, the trained
+set and Adam's moments as ``GaussianArrays`` or ``SpacetimeArrays`` (``pano4d.extension``),
+and the loss comes back as ``LossParts``, read by name.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
 
-from pano4d.extension import core, flat, gaussian_arrays, gaussians_from, view
+from pano4d.extension import (
+    core,
+    flat,
+    gaussian_arrays,
+    gaussians_from,
+    spacetime_arrays,
+    spacetime_from,
+    view,
+)
 from pano4d.gaussians import Gaussians
 from pano4d.lift.densify import densify_due, split_and_prune
 from pano4d.lift.diagnosis import LOSS_EVERY
 from pano4d.lift.losses import moved_camera, sem_alpha
-from pano4d.lift.trainer import ADAM_BETAS, ADAM_EPS, Knobs, Trainer, learning_rates
+from pano4d.lift.trainer import ADAM_BETAS, ADAM_EPS, Knobs, TrainedSet, Trainer, learning_rates
+from pano4d.spacetime import SpacetimeGaussians
+
+
+def _arrays(s: Gaussians | SpacetimeGaussians) -> core.GaussianArrays | core.SpacetimeArrays:
+    """A set (or Adam moments of one) as the session takes it."""
+    return spacetime_arrays(s) if isinstance(s, SpacetimeGaussians) else gaussian_arrays(s)
+
+
+def _from_arrays(
+    arrays: core.GaussianArrays | core.SpacetimeArrays, device: torch.device | str
+) -> Gaussians | SpacetimeGaussians:
+    """What the session gives back, as the set it is."""
+    if isinstance(arrays, core.SpacetimeArrays):
+        return spacetime_from(arrays, device)
+    return gaussians_from(arrays, device)
+
+
+def _checkpoint_form(s: Gaussians | SpacetimeGaussians) -> dict[str, Any]:
+    """A set (or Adam moments of one) as a checkpoint holds it: a set of Gaussians as its
+    tensors, a spacetime set as its numpy arrays (``SpacetimeGaussians.to_numpy``)."""
+    return s.to_numpy() if isinstance(s, SpacetimeGaussians) else s.to("cpu").tensors()
+
+
+def _from_checkpoint(held: dict[str, Any]) -> Gaussians | SpacetimeGaussians:
+    return SpacetimeGaussians.from_numpy(held) if "model" in held else Gaussians(**held)
 
 
 def train_settings(
@@ -48,9 +86,7 @@ def train_settings(
     ``TrainConfig``): learning rates per group, Adam's β and ε, the weights of L1, D-SSIM,
     L_temporal and L_geo (L_sem runs on the host), the background and the rasteriser's mode."""
     return core.TrainSettings(
-        # The device takes the groups of a set of Gaussians until it trains spacetime sets.
-        learning_rates={k: v for k, v in learning_rates(knobs).items() if "time" not in k
-                        and not k.endswith("_terms")},
+        learning_rates=learning_rates(knobs),
         betas=ADAM_BETAS,
         eps=ADAM_EPS,
         lambda_l1=1 - knobs.lambda_dssim,
@@ -62,14 +98,16 @@ def train_settings(
     )
 
 
-class ResidentTrainer(Trainer):
-    """Optimises one set of Gaussians (optionally over the frozen static set) on the GPU."""
+class ResidentTrainer(Trainer[TrainedSet]):
+    """Optimises one set of Gaussians or one spacetime set (optionally over the frozen
+    static set) on the GPU."""
 
     sem_every = 1  # steps between semantic-loss evaluations (each reads two renders back)
     overflowed_frames = 0  # steps whose frame outgrew the intersection buffers (no gradient)
 
-    def _start(self, gaussians: Gaussians) -> None:
-        g = gaussians.detach()
+    def _start(self, gaussians: TrainedSet) -> None:
+        trained = gaussians.detach()
+        g = trained.canonical if isinstance(trained, SpacetimeGaussians) else trained
         static = Gaussians.empty(g.sh_degree) if self.static is None else self.static
         if static.sh_degree > g.sh_degree:
             raise ValueError(
@@ -81,7 +119,7 @@ class ResidentTrainer(Trainer):
         unit = torch.linalg.norm(g.means, dim=-1).clamp(min=1e-3)
         self._session = core.TrainSession(
             static_set=gaussian_arrays(static),
-            trained=gaussian_arrays(g),
+            trained=_arrays(trained),
             unit=flat(unit),
             views=self._view_targets(),
             settings=train_settings(self.knobs, tuple(float(v) for v in bg.reshape(-1))),
@@ -100,6 +138,7 @@ class ResidentTrainer(Trainer):
                 previous=flat(v.previous[i]) if temporal and v.previous is not None else None,
                 weight_sum=float(v.weight_sum(i)),
                 outside_sums=[float(x) for x in v.outside_sums(i)],
+                time=v.time(i),
             )
             for i, camera in enumerate(v.cameras)
         ]
@@ -179,7 +218,7 @@ class ResidentTrainer(Trainer):
         for key, arrays in (
             ("params", raw.params), ("exp_avg", raw.exp_avg), ("exp_avg_sq", raw.exp_avg_sq)
         ):
-            out[key] = gaussians_from(arrays, self.device)
+            out[key] = _from_arrays(arrays, self.device)
         for key, values in (
             ("unit", raw.unit), ("grad_accum", raw.grad_accum), ("grad_count", raw.grad_count)
         ):
@@ -188,36 +227,39 @@ class ResidentTrainer(Trainer):
 
     def _upload(
         self,
-        g: Gaussians,
+        g: Gaussians | SpacetimeGaussians,
         unit: torch.Tensor,
-        exp_avg: Gaussians | None,
-        exp_avg_sq: Gaussians | None,
+        exp_avg: Gaussians | SpacetimeGaussians | None,
+        exp_avg_sq: Gaussians | SpacetimeGaussians | None,
         grad_accum: torch.Tensor | None,
         grad_count: torch.Tensor | None,
         adam_steps: int,
     ) -> None:
         self._session.set_trained(
-            trained=gaussian_arrays(g),
+            trained=_arrays(g),
             unit=flat(unit),
-            exp_avg=None if exp_avg is None else gaussian_arrays(exp_avg),
-            exp_avg_sq=None if exp_avg_sq is None else gaussian_arrays(exp_avg_sq),
+            exp_avg=None if exp_avg is None else _arrays(exp_avg),
+            exp_avg_sq=None if exp_avg_sq is None else _arrays(exp_avg_sq),
             grad_accum=None if grad_accum is None else flat(grad_accum),
             grad_count=None if grad_count is None else flat(grad_count),
             adam_steps=adam_steps,
         )
         self._session.reserve_frames()
 
-    def result(self) -> Gaussians:
-        return gaussians_from(self._session.params(), self.device)
+    def result(self) -> TrainedSet:
+        return cast(TrainedSet, _from_arrays(self._session.params(), self.device))
 
     # --- densify and prune ------------------------------------------------------------------
     def densify_and_prune(self) -> None:
         """GaussianTrainer's densify-and-prune on the read-back state; Adam's moments move
-        with their Gaussians (survivors keep theirs, split children start at zero)."""
+        with their Gaussians (survivors keep theirs, split children start at zero), and so
+        do a spacetime set's time parameters (children take their parent's)."""
         with torch.no_grad():
             s = self._state()
+            trained = s["params"]
+            spacetime = isinstance(trained, SpacetimeGaussians)
             d = split_and_prune(
-                s["params"],
+                trained.canonical if spacetime else trained,
                 s["unit"],
                 s["grad_accum"],
                 s["grad_count"],
@@ -227,17 +269,18 @@ class ResidentTrainer(Trainer):
             )
             self.last_densify = d.stats
             moments = [s[key].map(d.carry) for key in ("exp_avg", "exp_avg_sq")]
-            self._upload(d.gaussians, d.unit, *moments, None, None, s["adam_steps"])
+            densified = d.with_time(trained) if spacetime else d.gaussians
+            self._upload(densified, d.unit, *moments, None, None, s["adam_steps"])
 
     # --- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         s = self._state()
         return {
             "resident": True,
-            "params": s["params"].to("cpu").tensors(),
+            "params": _checkpoint_form(s["params"]),
             "unit": s["unit"].cpu(),
-            "exp_avg": s["exp_avg"].to("cpu").tensors(),
-            "exp_avg_sq": s["exp_avg_sq"].to("cpu").tensors(),
+            "exp_avg": _checkpoint_form(s["exp_avg"]),
+            "exp_avg_sq": _checkpoint_form(s["exp_avg_sq"]),
             "adam_steps": s["adam_steps"],
             "generator": self.generator.get_state(),
             "step": self.step,
@@ -253,10 +296,10 @@ class ResidentTrainer(Trainer):
                 "resident one; resume it with the trainer that wrote it"
             )
         self._upload(
-            Gaussians(**state["params"]),
+            _from_checkpoint(state["params"]),
             state["unit"],
-            Gaussians(**state["exp_avg"]),
-            Gaussians(**state["exp_avg_sq"]),
+            _from_checkpoint(state["exp_avg"]),
+            _from_checkpoint(state["exp_avg_sq"]),
             state["grad_accum"],
             state["grad_count"],
             int(state["adam_steps"]),

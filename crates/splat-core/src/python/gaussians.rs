@@ -14,7 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::gaussians::{sh_coeffs, GaussianSet, SceneInput};
-use crate::spacetime::{SpacetimeSet, TimeModel};
+use crate::spacetime::{SpacetimeSet, TimeInput, TimeModel};
 
 /// N Gaussians in the 3DGS parameterisation, held by the extension (a [`GaussianSet`]).
 #[pyclass(name = "GaussianArrays", module = "pano4d._core", frozen)]
@@ -188,6 +188,12 @@ pub struct PySpacetimeArrays {
 impl PySpacetimeArrays {
     pub(super) fn set(&self) -> &SpacetimeSet {
         &self.set
+    }
+
+    /// The canonical Gaussians and the time parameters as the training session borrows
+    /// them.
+    pub(super) fn input(&self) -> (SceneInput<'_>, TimeInput<'_>) {
+        (SceneInput::from(&self.set.canonical), self.set.time_input())
     }
 }
 

@@ -3,9 +3,10 @@
 //!
 //! Everything crosses as typed objects built by keyword and read by name: the knobs as one
 //! `TrainSettings` (the Rust [`TrainConfig`]), each view's targets as a `ViewTarget`, the
-//! static set, the trained set, gradients and Adam moments as `GaussianArrays`
-//! (python/gaussians.rs), and what comes back as `LossParts`, `FrameCheck`, `TrainState`
-//! and `Traffic`. Every call runs on the process-wide renderer (python/raster.rs) with the
+//! static set and the scene's gradients as `GaussianArrays`, the trained set and its Adam
+//! moments as `GaussianArrays` or, for a spacetime set, `SpacetimeArrays`
+//! (python/gaussians.rs; what the session gives back is of the kind it was given), and
+//! what comes back as `LossParts`, `FrameCheck`, `TrainState` and `Traffic`. Every call runs on the process-wide renderer (python/raster.rs) with the
 //! GIL released.
 
 use std::collections::BTreeMap;
@@ -14,9 +15,11 @@ use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::gaussians::PyGaussianArrays;
+use super::gaussians::{PyGaussianArrays, PySpacetimeArrays};
 use super::raster::{render_settings, slice, to_py, with_renderer, PyView};
+use crate::gaussians::SceneInput;
 use crate::raster::IntersectionCheck;
+use crate::spacetime::{SpacetimeSet, TimeInput};
 use crate::train::{
     AdamConfig, LossParts, LossWeights, Traffic, TrainConfig, TrainSession, TrainedInput,
     ViewTargets, GROUPS, OUTSIDE_SUMS,
@@ -24,7 +27,8 @@ use crate::train::{
 
 /// The learning-rate groups by name, in [`crate::train::AdamConfig::learning_rates`]' order
 /// (GaussianTrainer's parameter groups: means trained as offsets in units of each
-/// Gaussian's initial depth).
+/// Gaussian's initial depth, then a spacetime set's time parameters, its position terms
+/// in the same units).
 const GROUP_NAMES: [&str; GROUPS] = [
     "offsets",
     "log_scales",
@@ -32,6 +36,10 @@ const GROUP_NAMES: [&str; GROUPS] = [
     "opacity_logits",
     "sh_dc",
     "sh_rest",
+    "colour_terms",
+    "position_terms",
+    "time_centre",
+    "time_log_width",
 ];
 
 /// What a training session is configured with: Adam's learning rates (by group name), β
@@ -47,7 +55,8 @@ pub struct PyTrainSettings {
 #[pymethods]
 impl PyTrainSettings {
     /// `learning_rates`: {group: rate} for exactly the groups offsets, log_scales, quats,
-    /// opacity_logits, sh_dc, sh_rest; `lambda_l1`, `lambda_ssim`, `lambda_temporal`,
+    /// opacity_logits, sh_dc, sh_rest, colour_terms, position_terms, time_centre,
+    /// time_log_width (the last four a spacetime set's); `lambda_l1`, `lambda_ssim`, `lambda_temporal`,
     /// `lambda_geo`: the weights of L1, D-SSIM, L_temporal and L_geo; `antialiased`: the
     /// mode every render of the session draws in.
     #[new]
@@ -185,11 +194,13 @@ fn flattened(array: &PyReadonlyArrayDyn<'_, f32>) -> Vec<f32> {
 /// One view's targets (train::ViewTargets): the camera, the target rgb (H·W·3 values),
 /// the loss weight (H·W), Θ's z-depth (H·W, for L_geo) and the previous timestamp's render
 /// (H·W·3, for L_temporal) where the loss has them, the whole view's weight sum and the
-/// loss sums over the rest of it when the view is a window of a larger one. Arrays are
-/// float32 of any shape with those counts (read in row-major order) and copied.
+/// loss sums over the rest of it when the view is a window of a larger one, and the time
+/// it shows in frames (a spacetime set is drawn at it). Arrays are float32 of any shape
+/// with those counts (read in row-major order) and copied.
 #[pyclass(name = "ViewTarget", module = "pano4d._core", frozen)]
 pub struct PyViewTarget {
     camera: crate::camera::Camera,
+    time: f64,
     rgb: Vec<f32>,
     weight: Vec<f32>,
     depth: Option<Vec<f32>>,
@@ -201,7 +212,8 @@ pub struct PyViewTarget {
 #[pymethods]
 impl PyViewTarget {
     #[new]
-    #[pyo3(signature = (*, view, rgb, weight, weight_sum, outside_sums, depth=None, previous=None))]
+    #[pyo3(signature = (*, view, rgb, weight, weight_sum, outside_sums, depth=None, previous=None, time=0.0))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         view: PyRef<'_, PyView>,
         rgb: PyReadonlyArrayDyn<'_, f32>,
@@ -210,9 +222,11 @@ impl PyViewTarget {
         outside_sums: [f32; OUTSIDE_SUMS],
         depth: Option<PyReadonlyArrayDyn<'_, f32>>,
         previous: Option<PyReadonlyArrayDyn<'_, f32>>,
+        time: f64,
     ) -> Self {
         Self {
             camera: view.camera,
+            time,
             rgb: flattened(&rgb),
             weight: flattened(&weight),
             depth: depth.as_ref().map(flattened),
@@ -227,6 +241,7 @@ impl PyViewTarget {
     fn targets(&self) -> ViewTargets<'_> {
         ViewTargets {
             camera: self.camera,
+            time: self.time,
             rgb: &self.rgb,
             weight: &self.weight,
             depth: self.depth.as_deref(),
@@ -370,13 +385,14 @@ impl PyTraffic {
 }
 
 /// The trained set and its optimiser state, read back (train::TrainState): the parameters
-/// and Adam's moments as `GaussianArrays` (the means' moments are the offsets'), the
+/// and Adam's moments as `GaussianArrays` or `SpacetimeArrays`, the kind the session
+/// trains (the moments of the means and position terms are their offsets'), the
 /// per-Gaussian offset unit and gradient statistics, and the Adam step count.
 #[pyclass(name = "TrainState", module = "pano4d._core", frozen)]
 pub struct PyTrainState {
-    params: Py<PyGaussianArrays>,
-    exp_avg: Py<PyGaussianArrays>,
-    exp_avg_sq: Py<PyGaussianArrays>,
+    params: Py<PyAny>,
+    exp_avg: Py<PyAny>,
+    exp_avg_sq: Py<PyAny>,
     unit: Py<PyArray1<f32>>,
     grad_accum: Py<PyArray1<f32>>,
     grad_count: Py<PyArray1<f32>>,
@@ -386,17 +402,17 @@ pub struct PyTrainState {
 #[pymethods]
 impl PyTrainState {
     #[getter]
-    fn params(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+    fn params(&self, py: Python<'_>) -> Py<PyAny> {
         self.params.clone_ref(py)
     }
 
     #[getter]
-    fn exp_avg(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+    fn exp_avg(&self, py: Python<'_>) -> Py<PyAny> {
         self.exp_avg.clone_ref(py)
     }
 
     #[getter]
-    fn exp_avg_sq(&self, py: Python<'_>) -> Py<PyGaussianArrays> {
+    fn exp_avg_sq(&self, py: Python<'_>) -> Py<PyAny> {
         self.exp_avg_sq.clone_ref(py)
     }
 
@@ -424,6 +440,37 @@ impl PyTrainState {
     }
 }
 
+/// A trained set as it crosses into the session, or Adam moments of one: a set of
+/// Gaussians or a spacetime set.
+#[derive(FromPyObject)]
+enum TrainedArrays<'py> {
+    Gaussians(PyRef<'py, PyGaussianArrays>),
+    Spacetime(PyRef<'py, PySpacetimeArrays>),
+}
+
+impl TrainedArrays<'_> {
+    /// The Gaussians and a spacetime set's time parameters, borrowed.
+    fn input(&self) -> (SceneInput<'_>, Option<TimeInput<'_>>) {
+        match self {
+            Self::Gaussians(g) => (g.input(), None),
+            Self::Spacetime(s) => {
+                let (canonical, time) = s.input();
+                (canonical, Some(time))
+            }
+        }
+    }
+
+    /// The values in the session's layout (train::TrainState's).
+    fn packed(&self) -> Vec<f32> {
+        let (gaussians, time) = self.input();
+        let mut packed = gaussians.packed();
+        for section in time.iter().flat_map(|t| t.sections()) {
+            packed.extend_from_slice(section);
+        }
+        packed
+    }
+}
+
 /// The trained Gaussians, their Adam moments and the stage's targets on the GPU, after a
 /// frozen static set.
 #[pyclass(name = "TrainSession", module = "pano4d._core")]
@@ -432,24 +479,39 @@ pub struct PyTrainSession {
 }
 
 impl PyTrainSession {
-    /// Gaussians `first..first + n` of the session's packed read-back as `GaussianArrays`.
-    fn arrays(&self, packed: &[f32], n: usize) -> PyGaussianArrays {
+    /// `n` Gaussians of the session's packed read-back of the scene as `GaussianArrays`.
+    fn scene_arrays(&self, packed: &[f32], n: usize) -> PyGaussianArrays {
         PyGaussianArrays::from_packed(packed, n, self.inner.sh_degree())
+    }
+
+    /// The `n` trained Gaussians of a read-back in the session's layout (parameters,
+    /// moments, gradients) as the kind the session trains: `GaussianArrays` or
+    /// `SpacetimeArrays`.
+    fn trained_arrays(&self, py: Python<'_>, packed: &[f32], n: usize) -> PyResult<Py<PyAny>> {
+        let degree = self.inner.sh_degree();
+        Ok(match self.inner.time_model() {
+            None => Py::new(py, self.scene_arrays(packed, n))?.into_any(),
+            Some(model) => {
+                let set = SpacetimeSet::from_packed(packed, n, degree, model);
+                Py::new(py, PySpacetimeArrays::from(set))?.into_any()
+            }
+        })
     }
 }
 
 #[pymethods]
 impl PyTrainSession {
     /// `static_set`: the frozen static set drawn before the trained one (may be empty; the
-    /// trained set's SH degree); `trained`: the set to train; `unit`: each trained
-    /// Gaussian's offset unit; `views`: the ViewTargets steps draw from (a view may be a
-    /// window of a larger one: train::ViewTargets); `settings`: a TrainSettings.
+    /// trained set's SH degree); `trained`: the set to train, `GaussianArrays` or
+    /// `SpacetimeArrays` (drawn at each step's view time); `unit`: each trained Gaussian's
+    /// offset unit; `views`: the ViewTargets steps draw from (a view may be a window of a
+    /// larger one: train::ViewTargets); `settings`: a TrainSettings.
     #[new]
     #[pyo3(signature = (*, static_set, trained, unit, views, settings))]
     fn new(
         py: Python<'_>,
         static_set: PyRef<'_, PyGaussianArrays>,
-        trained: PyRef<'_, PyGaussianArrays>,
+        trained: TrainedArrays<'_>,
         unit: PyReadonlyArray1<'_, f32>,
         views: Vec<PyRef<'_, PyViewTarget>>,
         settings: PyRef<'_, PyTrainSettings>,
@@ -458,8 +520,10 @@ impl PyTrainSession {
         let targets: Vec<ViewTargets<'_>> = views.iter().map(|v| v.targets()).collect();
         let config = settings.config;
         let static_set = static_set.input();
+        let (gaussians, time) = trained.input();
         let trained = TrainedInput {
-            gaussians: trained.input(),
+            gaussians,
+            time,
             unit,
             exp_avg: None,
             exp_avg_sq: None,
@@ -594,7 +658,7 @@ impl PyTrainSession {
         let s = &mut self.inner;
         let state = py.detach(|| s.state()).map_err(to_py)?;
         let n = state.unit.len();
-        let arrays = |packed: &[f32]| Py::new(py, self.arrays(packed, n));
+        let arrays = |packed: &[f32]| self.trained_arrays(py, packed, n);
         Ok(PyTrainState {
             params: arrays(&state.params)?,
             exp_avg: arrays(&state.exp_avg)?,
@@ -606,41 +670,63 @@ impl PyTrainSession {
         })
     }
 
-    /// The trained set's parameters.
-    fn params(&mut self, py: Python<'_>) -> PyResult<PyGaussianArrays> {
+    /// The trained set's parameters, of the kind it was given.
+    fn params(&mut self, py: Python<'_>) -> PyResult<Py<PyAny>> {
         let s = &mut self.inner;
         let packed = py.detach(|| s.params()).map_err(to_py)?;
-        Ok(self.arrays(&packed, self.inner.len()))
+        self.trained_arrays(py, &packed, self.inner.len())
     }
 
-    /// The whole scene: the static set, then the trained set.
+    /// The trained parameters' gradient, of the kind the session trains (the means' and
+    /// position terms' themselves, not their offsets'): of the last backward
+    /// (forward_backward, with backward_at's), or of `scene_gradient` (the static set, then
+    /// the trained set's snapshot: what the backward writes), which replaces it; a
+    /// spacetime set's through the adjoint of its evaluation at the last view's time.
+    #[pyo3(signature = (scene_gradient=None))]
+    fn parameter_gradient(
+        &mut self,
+        py: Python<'_>,
+        scene_gradient: Option<PyRef<'_, PyGaussianArrays>>,
+    ) -> PyResult<Py<PyAny>> {
+        let given = scene_gradient.map(|g| g.input().packed());
+        let s = &mut self.inner;
+        let packed = py
+            .detach(|| s.parameter_gradient(given.as_deref()))
+            .map_err(to_py)?;
+        self.trained_arrays(py, &packed, self.inner.len())
+    }
+
+    /// The whole scene: the static set, then the trained set (a spacetime set's canonical
+    /// Gaussians).
     fn scene(&mut self, py: Python<'_>) -> PyResult<PyGaussianArrays> {
         let s = &mut self.inner;
         let packed = py.detach(|| s.scene()).map_err(to_py)?;
         let n = self.inner.static_len() + self.inner.len();
-        Ok(self.arrays(&packed, n))
+        Ok(self.scene_arrays(&packed, n))
     }
 
-    /// Replaces the trained set and its optimiser state (densification, resume); moments
-    /// and statistics left out start at zero.
+    /// Replaces the trained set and its optimiser state (densification, resume) with a set
+    /// of the session's kind; moments and statistics left out start at zero.
     #[pyo3(signature = (*, trained, unit, exp_avg=None, exp_avg_sq=None, grad_accum=None, grad_count=None, adam_steps=0))]
     #[allow(clippy::too_many_arguments)]
     fn set_trained(
         &mut self,
         py: Python<'_>,
-        trained: PyRef<'_, PyGaussianArrays>,
+        trained: TrainedArrays<'_>,
         unit: PyReadonlyArray1<'_, f32>,
-        exp_avg: Option<PyRef<'_, PyGaussianArrays>>,
-        exp_avg_sq: Option<PyRef<'_, PyGaussianArrays>>,
+        exp_avg: Option<TrainedArrays<'_>>,
+        exp_avg_sq: Option<TrainedArrays<'_>>,
         grad_accum: Option<PyReadonlyArray1<'_, f32>>,
         grad_count: Option<PyReadonlyArray1<'_, f32>>,
         adam_steps: u64,
     ) -> PyResult<()> {
         let unit = slice("unit", &unit)?;
-        let exp_avg = exp_avg.map(|m| m.input().packed());
-        let exp_avg_sq = exp_avg_sq.map(|m| m.input().packed());
+        let exp_avg = exp_avg.map(|m| m.packed());
+        let exp_avg_sq = exp_avg_sq.map(|m| m.packed());
+        let (gaussians, time) = trained.input();
         let input = TrainedInput {
-            gaussians: trained.input(),
+            gaussians,
+            time,
             unit,
             exp_avg: exp_avg.as_deref(),
             exp_avg_sq: exp_avg_sq.as_deref(),

@@ -1,27 +1,40 @@
 //! Adam on the device (`adam.wgsl`): torch.optim.Adam's update, element by element, with
 //! one learning rate per parameter group.
 
+use super::evaluate::TIME_LAYOUT_WGSL;
 use crate::raster::gpu::{compile, div_ceil, run_linear};
 use crate::raster::{COMMON_WGSL, GAUSSIAN_LAYOUT_WGSL};
+use crate::spacetime::MIN_WIDTH_FRAMES;
 use crate::wgsl::{gpu_struct, KernelModule, WgslPart};
 
 const ADAM_WGSL: WgslPart = WgslPart {
     file: "adam.wgsl",
     source: include_str!("adam.wgsl"),
-    needs: &[COMMON_WGSL.file, GAUSSIAN_LAYOUT_WGSL.file],
+    needs: &[
+        COMMON_WGSL.file,
+        GAUSSIAN_LAYOUT_WGSL.file,
+        TIME_LAYOUT_WGSL.file,
+    ],
     reads: &[],
 };
 
 pub(crate) fn module() -> KernelModule {
     KernelModule {
         label: "adam",
-        parts: vec![&COMMON_WGSL, &GAUSSIAN_LAYOUT_WGSL, &ADAM_WGSL],
+        parts: vec![
+            &COMMON_WGSL,
+            &GAUSSIAN_LAYOUT_WGSL,
+            &TIME_LAYOUT_WGSL,
+            &ADAM_WGSL,
+        ],
     }
 }
 
 /// Parameter groups, in the order of the learning rates: means (as offsets in units of
-/// each Gaussian's initial depth), log-scales, quaternions, opacity logits, SH DC, SH rest.
-pub const GROUPS: usize = 6;
+/// each Gaussian's initial depth), log-scales, quaternions, opacity logits, SH DC, SH rest,
+/// then a spacetime set's colour terms, position terms (as offsets, like the means),
+/// centre times and log-widths.
+pub const GROUPS: usize = 10;
 
 /// Adam's hyper-parameters (torch's names and defaults for β).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,19 +53,19 @@ gpu_struct! {
         grad_len: u32,
         sh_coeffs: u32,
         has_extra: u32,
+        timed: u32,
         pad0: u32,
         pad1: u32,
-        pad2: u32,
         beta1_complement: f32,
         beta2: f32,
         beta2_complement: f32,
         eps: f32,
         bias2_sqrt: f32,
+        min_log_width: f32,
+        pad2: f32,
         pad3: f32,
-        pad4: f32,
-        pad5: f32,
-        /// Per group, four to a vector (two groups unused).
-        neg_step: [[f32; 4]; 2],
+        /// Per group, four to a vector (two slots unused).
+        neg_step: [[f32; 4]; GROUPS.div_ceil(4)],
     }
 }
 
@@ -63,6 +76,8 @@ pub(super) struct AdamLayout {
     pub n_train: u32,
     pub sh_coeffs: u32,
     pub has_extra: bool,
+    /// A spacetime set: its time sections follow the Gaussians'.
+    pub timed: bool,
 }
 
 impl AdamConfig {
@@ -73,7 +88,7 @@ impl AdamConfig {
         let t = step as f64;
         let bias1 = 1.0 - self.beta1.powf(t);
         let bias2 = 1.0 - self.beta2.powf(t);
-        let mut neg_step = [[0.0f32; 4]; 2];
+        let mut neg_step = [[0.0f32; 4]; GROUPS.div_ceil(4)];
         for (out, lr) in neg_step
             .as_flattened_mut()
             .iter_mut()
@@ -87,17 +102,18 @@ impl AdamConfig {
             grad_len: layout.n_static + layout.n_train,
             sh_coeffs: layout.sh_coeffs,
             has_extra: layout.has_extra as u32,
+            timed: layout.timed as u32,
             pad0: 0,
             pad1: 0,
-            pad2: 0,
             beta1_complement: (1.0 - self.beta1) as f32,
             beta2: self.beta2 as f32,
             beta2_complement: (1.0 - self.beta2) as f32,
             eps: self.eps as f32,
             bias2_sqrt: bias2.sqrt() as f32,
+            // torch's clamp_ rounds the Python float ln(MIN_WIDTH_FRAMES) to f32.
+            min_log_width: f64::from(MIN_WIDTH_FRAMES).ln() as f32,
+            pad2: 0.0,
             pad3: 0.0,
-            pad4: 0.0,
-            pad5: 0.0,
             neg_step,
         }
     }
@@ -114,6 +130,10 @@ pub(super) struct AdamBindings<'a> {
     pub exp_avg_sq: &'a wgpu::Buffer,
     pub unit: &'a wgpu::Buffer,
     pub stats: &'a wgpu::Buffer,
+    /// A spacetime set's time parameters' gradient and the step's time (for a set of
+    /// Gaussians, buffers the kernel does not read).
+    pub time_grads: &'a wgpu::Buffer,
+    pub time_params: &'a wgpu::Buffer,
 }
 
 pub(super) struct AdamKernel {
@@ -148,6 +168,8 @@ impl AdamKernel {
                 (5, b.exp_avg_sq),
                 (6, b.unit),
                 (7, b.stats),
+                (8, b.time_grads),
+                (9, b.time_params),
             ],
             div_ceil(n_train, 256),
         );

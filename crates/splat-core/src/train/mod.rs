@@ -8,11 +8,14 @@
 //!   complement), L_temporal and L_geo with their pixel gradient (`losses.wgsl`).
 //! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
 //!   (`adam.wgsl`).
+//! - [`evaluate`]: a trained spacetime set drawn at a step's view time and the adjoint of
+//!   that evaluation (`evaluate.wgsl`, `time_layout.wgsl`).
 //!
 //! The torch trainer (`pano4d.lift.torch_trainer.GaussianTrainer`) is the reference; the
 //! Python tests compare the two step for step.
 
 pub mod adam;
+pub mod evaluate;
 pub mod losses;
 pub mod session;
 #[cfg(test)]
@@ -26,5 +29,5 @@ pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, 
 /// structs).
 #[cfg(test)]
 pub(crate) fn kernel_modules() -> Vec<crate::wgsl::KernelModule> {
-    vec![losses::module(), adam::module()]
+    vec![losses::module(), adam::module(), evaluate::module()]
 }

@@ -9,17 +9,33 @@
 //! set's parameters in a buffer of their own (SoA sections of the set's length, as its
 //! moments), the scene the frames read (the static set, then the trained set's rendered
 //! snapshot) in another. The evaluate pass makes the snapshot from the parameters before a
-//! forward that follows a change (one buffer copy a step, per section; a per-Gaussian
-//! function of time goes here), and its adjoint carries the backward's gradient of the
-//! snapshot to the parameters (for a copy, the identity: Adam reads the trained part of the
-//! scene's gradient as the parameters'). It costs one more copy of the trained set on the
-//! device: (11 + 3K)·4 bytes a trained Gaussian, K SH coefficients per channel (56 at
-//! degree 0, 236 at degree 3). The host reads back the loss parts
-//! ([`TrainSession::loss`]) when it wants them and the whole trained state
-//! ([`TrainSession::state`]) at checkpoints, densification and export; [`Traffic`]
-//! counts every byte the session moves between host and device.
+//! forward that follows a change, and its adjoint carries the backward's gradient of the
+//! snapshot to the parameters. For a set of Gaussians the snapshot is a copy (one buffer
+//! copy a step, per section) and the adjoint the identity: Adam reads the trained part of
+//! the scene's gradient as the parameters'. A spacetime set (crate::spacetime: a trained
+//! set with time parameters, its time sections after the Gaussians') is drawn at the time of
+//! the step's view by a compute pass, whose adjoint writes the time parameters' gradient
+//! (evaluate.rs); every parameter of its Gaussians still takes the snapshot's gradient as
+//! its own.
+//!
+//! Device memory per trained Gaussian, in floats, with K SH coefficients per channel and T
+//! time parameters (2 + 6·(colour + position harmonics): 20 at the default 2 and 1; 0 for a
+//! set of Gaussians): the parameters and Adam's two moments 3·(11 + 3K + T), the snapshot
+//! 11 + 3K, the gradients of two renders (the step's and the semantic loss's) 2·(11 + 3K),
+//! the time parameters' gradient T, the unit and statistics 3. Parameters, moments and
+//! snapshot are 116 floats (464 bytes) at SH degree 0 and 296 (1,184 bytes) at degree 3
+//! with the default harmonics, 56 and 236 without time; everything, 167 (668 bytes) and 437
+//! (1,748 bytes). The largest bindings are the scene's ((11 + 3K)·4 bytes a Gaussian, the
+//! static set's included) and the parameters' ((11 + 3K + T)·4: 136 bytes at degree 0, 316
+//! at degree 3), each within the device's storage-binding limit: lavapipe's 128 MiB holds
+//! the parameters of 986k trained Gaussians of degree 0 with time, 424k of degree 3.
+//!
+//! The host reads back the loss parts ([`TrainSession::loss`]) when it wants them and the
+//! whole trained state ([`TrainSession::state`]) at checkpoints, densification and export;
+//! [`Traffic`] counts every byte the session moves between host and device.
 
 use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
+use super::evaluate::{EvaluateKernels, TimeLayout, TimeParams};
 use super::losses::{
     LossBuffers, LossKernels, LossParams, LossParts, LossWeights, ViewBuffers, LOSS_PARTS,
     OUTSIDE_SUMS,
@@ -31,6 +47,7 @@ use crate::raster::{
     binding_limit, Frame, GpuScene, IntersectionCheck, RasterError, RenderSettings, Renderer,
     SceneBuffer, PIXEL_CHANNELS,
 };
+use crate::spacetime::{TimeInput, TimeModel};
 
 /// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
 /// L_geo) and the previous timestamp's render (h·w·3, for L_temporal). The camera may be a
@@ -39,6 +56,9 @@ use crate::raster::{
 /// differ in size.
 pub struct ViewTargets<'a> {
     pub camera: Camera,
+    /// The time the view shows, in frames: a spacetime set is drawn at it (a set of
+    /// Gaussians is the same at every time).
+    pub time: f64,
     pub rgb: &'a [f32],
     pub weight: &'a [f32],
     pub depth: Option<&'a [f32]>,
@@ -65,8 +85,10 @@ pub struct Traffic {
 }
 
 /// The trained set with its optimiser state. Parameters and moments are in the packed SoA
-/// layout of [`SceneInput::packed`] (means, log-scales, quaternions, opacity logits, SH);
-/// the mean moments are those of the offsets (see adam.wgsl).
+/// layout of [`SceneInput::packed`] (means, log-scales, quaternions, opacity logits, SH),
+/// a spacetime set's time sections after those ([`TimeInput::sections`]' order); the
+/// moments of the means and of the position terms are those of their offsets (see
+/// adam.wgsl).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TrainState {
     pub params: Vec<f32>,
@@ -83,7 +105,11 @@ pub struct TrainState {
 /// What [`TrainSession::set_trained`] uploads; moments and statistics start at zero
 /// where they are `None`.
 pub struct TrainedInput<'a> {
+    /// The Gaussians, or a spacetime set's canonical Gaussians.
     pub gaussians: SceneInput<'a>,
+    /// A spacetime set's time parameters (None: a set of Gaussians). A session trains one
+    /// kind of set: the one it was made with.
+    pub time: Option<TimeInput<'a>>,
     /// Each Gaussian's offset unit (its initial distance from the centre).
     pub unit: &'a [f32],
     pub exp_avg: Option<&'a [f32]>,
@@ -95,6 +121,7 @@ pub struct TrainedInput<'a> {
 
 struct View {
     camera: Camera,
+    time: f64,
     params: wgpu::Buffer,
     rgb: wgpu::Buffer,
     weight: wgpu::Buffer,
@@ -109,12 +136,20 @@ struct View {
 /// Per-Gaussian buffers of the trained set, sized for its count.
 struct Trained {
     len: u32,
-    /// The parameters Adam updates, SoA sections of `len` ([`SceneInput::packed`]).
+    /// The parameters Adam updates, SoA sections of `len` ([`TrainState`]'s layout).
     params: wgpu::Buffer,
     unit: wgpu::Buffer,
     exp_avg: wgpu::Buffer,
     exp_avg_sq: wgpu::Buffer,
     stats: wgpu::Buffer,
+    /// A spacetime set's time parameters' gradient (the adjoint's), in their sections.
+    time_grads: wgpu::Buffer,
+}
+
+/// What a session training a spacetime set has besides.
+struct Motion {
+    model: TimeModel,
+    kernels: EvaluateKernels,
 }
 
 pub struct TrainSession {
@@ -137,8 +172,15 @@ pub struct TrainSession {
     /// [`Self::evaluate`]; SoA sections of `capacity`.
     scene: wgpu::Buffer,
     capacity: u32,
-    /// Whether the parameters changed since the snapshot was made.
+    /// Whether the parameters (or the time) changed since the snapshot was made.
     snapshot_stale: bool,
+    /// A spacetime set's time model and kernels (None: a set of Gaussians).
+    motion: Option<Motion>,
+    /// The time the snapshot shows (or, stale, is to show), in frames: the last view's.
+    time: f64,
+    /// The uniform of the functions of time at `time` (time_layout.wgsl); bound by Adam
+    /// for a set of Gaussians too, which does not read it.
+    time_params: wgpu::Buffer,
     trained: Trained,
     grads: wgpu::Buffer,
     grads_extra: wgpu::Buffer,
@@ -211,11 +253,19 @@ impl TrainSession {
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let loss_buffers = LossBuffers::new(&device, max_pixels);
-        let adam_params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("adam params"),
-            size: std::mem::size_of::<AdamParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let uniform = |label: &str, size: usize| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let adam_params = uniform("adam params", std::mem::size_of::<AdamParams>());
+        let time_params = uniform("time params", std::mem::size_of::<TimeParams>());
+        let motion = trained.time.map(|t| Motion {
+            model: t.model,
+            kernels: EvaluateKernels::new(&device),
         });
         let mut session = Self {
             losses: LossKernels::new(&device),
@@ -230,6 +280,9 @@ impl TrainSession {
             scene: storage(&device, "scene", 0),
             capacity: 0,
             snapshot_stale: true,
+            motion,
+            time: 0.0,
+            time_params,
             trained: Trained {
                 len: 0,
                 params: storage(&device, "trained parameters", 0),
@@ -237,6 +290,7 @@ impl TrainSession {
                 exp_avg: storage(&device, "exp_avg", 0),
                 exp_avg_sq: storage(&device, "exp_avg_sq", 0),
                 stats: storage(&device, "gradient statistics", 0),
+                time_grads: storage(&device, "time gradients", 0),
             },
             grads: storage(&device, "gradients", 0),
             grads_extra: storage(&device, "extra gradients", 0),
@@ -270,6 +324,12 @@ impl TrainSession {
         if w.min(h) < 4 {
             return Err(invalid(format!(
                 "views must be at least 4 pixels a side for SSIM, got {w}x{h}"
+            )));
+        }
+        if !view.time.is_finite() {
+            return Err(invalid(format!(
+                "a view's time must be finite, got {}",
+                view.time
             )));
         }
         if !view.outside.iter().all(|v| v.is_finite()) {
@@ -316,6 +376,7 @@ impl TrainSession {
         };
         let view = View {
             camera: view.camera,
+            time: view.time,
             params: uniform,
             rgb: array("target rgb", view.rgb),
             weight: array("target weight", view.weight),
@@ -452,12 +513,40 @@ impl TrainSession {
         }
     }
 
+    /// Floats per Gaussian of the scene and its gradient.
     fn floats_per_gaussian(&self) -> u64 {
         BASE_FLOATS as u64 + 3 * self.sh_coeffs as u64
     }
 
+    /// Time parameters per trained Gaussian (0 for a set of Gaussians).
+    fn time_floats(&self) -> u64 {
+        self.motion
+            .as_ref()
+            .map_or(0, |m| m.model.floats_per_gaussian() as u64)
+    }
+
+    /// Floats per trained Gaussian of its parameters and of each of its moments.
+    fn param_floats(&self) -> u64 {
+        self.floats_per_gaussian() + self.time_floats()
+    }
+
+    /// The evaluate pass and its adjoint, of a session that trains a spacetime set.
+    fn kernels(&self) -> &EvaluateKernels {
+        &self
+            .motion
+            .as_ref()
+            .expect("a spacetime set's session")
+            .kernels
+    }
+
+    /// The time model of the spacetime set the session trains (None: a set of Gaussians).
+    pub fn time_model(&self) -> Option<TimeModel> {
+        self.motion.as_ref().map(|m| m.model)
+    }
+
     /// Replaces the trained set (after densification, or to resume): parameters, units,
-    /// moments, statistics and the Adam step count.
+    /// moments, statistics and the Adam step count. A set of the session's kind: a
+    /// spacetime set of its time model, or a set of Gaussians.
     pub fn set_trained(&mut self, t: TrainedInput<'_>) -> Result<(), RasterError> {
         let (n, k) = t.gaussians.validate().map_err(invalid)?;
         if n > 0 && k != self.sh_coeffs {
@@ -467,7 +556,22 @@ impl TrainSession {
             )));
         }
         let nn = n as usize;
-        let floats = self.floats_per_gaussian() as usize * nn;
+        let model = t.time.map(|time| time.model);
+        if model != self.time_model() {
+            let kind = |m: Option<TimeModel>| match m {
+                Some(m) => format!("a spacetime set of {m:?}"),
+                None => "a set of Gaussians".to_string(),
+            };
+            return Err(invalid(format!(
+                "this session trains {}, not {}",
+                kind(self.time_model()),
+                kind(model)
+            )));
+        }
+        if let Some(time) = t.time {
+            time.check(nn).map_err(invalid)?;
+        }
+        let floats = self.param_floats() as usize * nn;
         check_len("unit", t.unit.len(), nn)?;
         if !t.unit.iter().all(|u| u.is_finite() && *u > 0.0) {
             return Err(invalid("unit must be finite and > 0".into()));
@@ -483,6 +587,15 @@ impl TrainSession {
             }
         }
         self.allocate_scene(self.n_static + n)?;
+        // A spacetime set's parameters may outgrow the scene's binding (a small static set).
+        let (bytes, allowed) = (4 * floats as u64, binding_limit(&self.device));
+        if bytes > allowed {
+            return Err(RasterError::TooLarge {
+                gaussians: nn,
+                bytes,
+                allowed,
+            });
+        }
         let device = self.device.clone();
         let fresh = |label: &str, len: usize, data: Option<&[f32]>, s: &mut Self| {
             let buffer = storage(&device, label, len as u64);
@@ -491,12 +604,11 @@ impl TrainSession {
             }
             buffer
         };
-        let params = fresh(
-            "trained parameters",
-            floats,
-            Some(&t.gaussians.packed()),
-            self,
-        );
+        let mut packed = t.gaussians.packed();
+        for section in t.time.iter().flat_map(|time| time.sections()) {
+            packed.extend_from_slice(section);
+        }
+        let params = fresh("trained parameters", floats, Some(&packed), self);
         let unit = fresh("unit", nn, Some(t.unit), self);
         let exp_avg = fresh("exp_avg", floats, t.exp_avg, self);
         let exp_avg_sq = fresh("exp_avg_sq", floats, t.exp_avg_sq, self);
@@ -507,6 +619,12 @@ impl TrainSession {
         if let Some(count) = t.grad_count {
             self.upload(&stats, 4 * n as u64, bytemuck::cast_slice(count));
         }
+        let time_grads = fresh(
+            "time gradients",
+            self.time_floats() as usize * nn,
+            None,
+            self,
+        );
         self.trained = Trained {
             len: n,
             params,
@@ -514,6 +632,7 @@ impl TrainSession {
             exp_avg,
             exp_avg_sq,
             stats,
+            time_grads,
         };
         let grad_floats = self.floats_per_gaussian() * (self.n_static + n) as u64;
         self.grads = storage(&device, "gradients", grad_floats);
@@ -535,11 +654,53 @@ impl TrainSession {
         }
     }
 
+    /// The time the next forward draws the trained set at: a spacetime set's snapshot is
+    /// made again when it changes.
+    fn set_time(&mut self, time: f64) {
+        if self.motion.is_some() && time != self.time {
+            self.time = time;
+            self.snapshot_stale = true;
+        }
+    }
+
+    /// Writes the uniform of the functions of time at the session's time.
+    fn write_time_params(&mut self, model: TimeModel) {
+        let layout = TimeLayout {
+            n_static: self.n_static,
+            n_train: self.trained.len,
+            scene_len: self.capacity,
+            sh_coeffs: self.sh_coeffs,
+            has_extra: self.has_extra,
+        };
+        let uniform = self.time_params.clone();
+        let params = TimeParams::new(&model, self.time, layout);
+        self.upload(&uniform, 0, bytemuck::bytes_of(&params));
+    }
+
     /// The evaluate pass: makes the scene's snapshot of the trained set from its parameters
-    /// (a copy of each SoA section) where they changed since the last one. Every forward
-    /// that draws the trained set runs it first.
+    /// where they (or the time) changed since the last one: a copy of each SoA section, or
+    /// a spacetime set drawn at the session's time (evaluate.wgsl). Every forward that
+    /// draws the trained set runs it first.
     fn evaluate(&mut self) -> Result<(), RasterError> {
         if !self.snapshot_stale {
+            return Ok(());
+        }
+        if let Some(model) = self.time_model() {
+            self.write_time_params(model);
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                self.kernels().encode_evaluate(
+                    &self.device,
+                    &mut pass,
+                    &self.time_params,
+                    &self.trained.params,
+                    &self.scene,
+                    self.trained.len,
+                );
+            }
+            self.submit(encoder)?;
+            self.snapshot_stale = false;
             return Ok(());
         }
         let mut encoder = self.device.create_command_encoder(&Default::default());
@@ -606,9 +767,10 @@ impl TrainSession {
     /// also renders the static set alone from each view, which the steps then copy where no
     /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
-        self.evaluate()?;
         for index in 0..self.views.len() {
-            let camera = self.views[index].camera;
+            let View { camera, time, .. } = self.views[index];
+            self.set_time(time);
+            self.evaluate()?;
             renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings, None)?;
         }
         self.extra_frame = None;
@@ -646,7 +808,8 @@ impl TrainSession {
         view: usize,
     ) -> Result<(), RasterError> {
         let v = self.view(view)?;
-        let (camera, static_render) = (v.camera, v.static_render.clone());
+        let (camera, time, static_render) = (v.camera, v.time, v.static_render.clone());
+        self.set_time(time);
         self.evaluate()?;
         let frame = renderer.encode_frame(
             self.scene_buffer(),
@@ -767,6 +930,7 @@ impl TrainSession {
             n_train: self.trained.len,
             sh_coeffs: self.sh_coeffs,
             has_extra: self.has_extra,
+            timed: self.motion.is_some(),
         };
         let params = self.config.adam.params(self.adam_steps, layout);
         let uniform = self.adam_params.clone();
@@ -774,6 +938,7 @@ impl TrainSession {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let mut pass = encoder.begin_compute_pass(&Default::default());
+            self.encode_adjoint(&mut pass);
             let bindings = AdamBindings {
                 params: &self.adam_params,
                 trained: &self.trained.params,
@@ -783,6 +948,8 @@ impl TrainSession {
                 exp_avg_sq: &self.trained.exp_avg_sq,
                 unit: &self.trained.unit,
                 stats: &self.trained.stats,
+                time_grads: &self.trained.time_grads,
+                time_params: &self.time_params,
             };
             self.adam
                 .encode(&self.device, &mut pass, &bindings, self.trained.len);
@@ -790,6 +957,84 @@ impl TrainSession {
         self.has_extra = false;
         self.snapshot_stale = true;
         self.submit(encoder)
+    }
+
+    /// Writes the uniform of a spacetime set's functions of time (with whether this step has
+    /// a second render's gradients) and encodes the adjoint of its evaluate pass: the time
+    /// parameters' gradient from the scene's. Nothing for a set of Gaussians.
+    fn encode_adjoint(&mut self, pass: &mut wgpu::ComputePass<'_>) {
+        let Some(model) = self.time_model() else {
+            return;
+        };
+        self.write_time_params(model);
+        self.kernels().encode_adjoint(
+            &self.device,
+            pass,
+            &self.time_params,
+            &self.trained.params,
+            &self.grads,
+            &self.grads_extra,
+            &self.trained.time_grads,
+            self.trained.len,
+        );
+    }
+
+    /// The trained parameters' gradient, in [`TrainState`]'s layout (of the means and the
+    /// position terms themselves, not of their offsets), through the evaluate pass's adjoint
+    /// at the session's time: of the last backward (with [`Self::backward_at`]'s), or of
+    /// `scene_gradient` (the static set + trained scene, in the backward's layout), which
+    /// replaces it. For checking the adjoint and a step's gradient against torch's.
+    pub fn parameter_gradient(
+        &mut self,
+        scene_gradient: Option<&[f32]>,
+    ) -> Result<Vec<f32>, RasterError> {
+        let (n_static, n) = (self.n_static as u64, self.trained.len as u64);
+        if let Some(grads) = scene_gradient {
+            let floats = self.floats_per_gaussian() * (n_static + n);
+            check_len("gradients", grads.len(), floats as usize)?;
+            let buffer = self.grads.clone();
+            self.upload(&buffer, 0, bytemuck::cast_slice(grads));
+            self.has_extra = false;
+        }
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            self.encode_adjoint(&mut pass);
+        }
+        self.submit(encoder)?;
+        // The trained part of each gradient section, of the step's render and of the second
+        // one where there is one, then the time sections.
+        let renders: &[&wgpu::Buffer] = if self.has_extra {
+            &[&self.grads, &self.grads_extra]
+        } else {
+            &[&self.grads]
+        };
+        let mut regions = Vec::new();
+        for buffer in renders {
+            let mut at = 0;
+            for width in section_widths(self.sh_coeffs) {
+                regions.push((
+                    (*buffer).clone(),
+                    4 * (at + width * n_static),
+                    4 * width * n,
+                ));
+                at += width * (n_static + n);
+            }
+        }
+        let base = (self.floats_per_gaussian() * n) as usize;
+        let time_grads = self.trained.time_grads.clone();
+        regions.push((time_grads, 0, 4 * self.time_floats() * n));
+        let borrowed: Vec<(&wgpu::Buffer, u64, u64)> =
+            regions.iter().map(|(b, o, s)| (b, *o, *s)).collect();
+        let flat = self.read(&borrowed)?;
+        let (step, rest) = flat.split_at(base);
+        let (extra, time) = rest.split_at(rest.len() - (self.time_floats() * n) as usize);
+        let mut gradient = step.to_vec();
+        for (g, e) in gradient.iter_mut().zip(extra) {
+            *g += e;
+        }
+        gradient.extend_from_slice(time);
+        Ok(gradient)
     }
 
     /// Adam on given gradients (for the static set + trained scene, in the backward's
@@ -830,17 +1075,17 @@ impl TrainSession {
         self.read(&borrowed)
     }
 
-    /// The trained set's parameters, packed as [`SceneInput::packed`].
+    /// The trained set's parameters, in [`TrainState`]'s layout.
     pub fn params(&mut self) -> Result<Vec<f32>, RasterError> {
         let params = self.trained.params.clone();
-        let bytes = 4 * self.floats_per_gaussian() * self.trained.len as u64;
+        let bytes = 4 * self.param_floats() * self.trained.len as u64;
         self.read(&[(&params, 0, bytes)])
     }
 
     /// Reads the trained set and its optimiser state back (one round trip).
     pub fn state(&mut self) -> Result<TrainState, RasterError> {
         let n = self.trained.len as u64;
-        let floats = self.floats_per_gaussian() * n;
+        let floats = self.param_floats() * n;
         let t = &self.trained;
         let mut regions = Vec::new();
         for (buffer, len) in [

@@ -5,14 +5,16 @@
 
 use super::{
     ssim_taps, ssim_window, AdamConfig, LossWeights, TrainConfig, TrainSession, TrainedInput,
-    ViewTargets, OUTSIDE_SUMS,
+    ViewTargets, GROUPS, OUTSIDE_SUMS,
 };
 use crate::camera::Camera;
 use crate::gaussians::{GaussianSet, SceneInput};
 use crate::raster::{GpuContext, RasterError, RenderSettings, Renderer};
+use crate::spacetime::{SpacetimeSet, TimeModel};
 use glam::DVec3;
 
-const LEARNING_RATES: [f64; 6] = [1e-3, 5e-3, 1e-3, 5e-2, 1e-2, 5e-4];
+/// The default knobs' rates (lift/trainer.py's learning_rates), in GROUPS' order.
+const LEARNING_RATES: [f64; GROUPS] = [1e-3, 5e-3, 1e-3, 5e-2, 1e-2, 5e-4, 1e-2, 1e-3, 1e-2, 5e-3];
 
 fn config() -> TrainConfig {
     TrainConfig {
@@ -109,6 +111,7 @@ fn session(
     let unit = unit(trained);
     let view = ViewTargets {
         camera: camera(side),
+        time: 0.0,
         rgb: &t.rgb,
         weight: &t.weight,
         depth: Some(&t.depth),
@@ -142,6 +145,7 @@ fn unpacked(params: &[f32], n: usize) -> SceneInput<'_> {
 fn fresh<'a>(trained: &'a GaussianSet, unit: &'a [f32]) -> TrainedInput<'a> {
     TrainedInput {
         gaussians: SceneInput::from(trained),
+        time: None,
         unit,
         exp_avg: None,
         exp_avg_sq: None,
@@ -304,6 +308,7 @@ fn state_round_trips_and_steps_read_nothing_back() {
     // Write it back and read it again: identical.
     let input = TrainedInput {
         gaussians: unpacked(&state.params, trained.len()),
+        time: None,
         unit: &state.unit,
         exp_avg: Some(&state.exp_avg),
         exp_avg_sq: Some(&state.exp_avg_sq),
@@ -323,6 +328,7 @@ fn bad_inputs_are_refused_with_what_is_wrong() {
     let units = unit(&trained);
     let input = || TrainedInput {
         gaussians: SceneInput::from(&trained),
+        time: None,
         unit: &units,
         exp_avg: None,
         exp_avg_sq: None,
@@ -332,6 +338,7 @@ fn bad_inputs_are_refused_with_what_is_wrong() {
     };
     let view = |side: u32, rgb: &'static [f32]| ViewTargets {
         camera: camera(side),
+        time: 0.0,
         rgb,
         weight: &[],
         depth: None,
@@ -427,6 +434,7 @@ fn reserved_frames_do_not_overflow_and_checks_count_overflows() {
         .into_iter()
         .map(|camera| ViewTargets {
             camera,
+            time: 0.0,
             rgb: &t.rgb,
             weight: &t.weight,
             depth: None,
@@ -521,4 +529,117 @@ fn a_step_over_the_static_sets_own_render_draws_what_the_renderer_draws() {
             "step {step}: the frame differs from the renderer's"
         );
     }
+}
+
+/// `set` with time parameters of `model`: centres across the loop, widths of 1.5–4 frames,
+/// colour waves of a tenth and position waves of 2 % of the distance.
+fn with_time(set: GaussianSet, model: TimeModel, seed: u64) -> SpacetimeSet {
+    let n = set.len();
+    let mut s = seed;
+    let r = noise(&mut s, model.floats_per_gaussian() * n);
+    let (centre, rest) = r.split_at(n);
+    let (width, rest) = rest.split_at(n);
+    let (colour, position) = rest.split_at(6 * model.colour_harmonics as usize * n);
+    SpacetimeSet {
+        model,
+        canonical: set,
+        time_centre: centre.iter().map(|v| (v + 1.0) * 3.0).collect(),
+        time_log_width: width.iter().map(|v| (2.75 + 1.25 * v).ln()).collect(),
+        colour_terms: colour.iter().map(|v| 0.1 * v).collect(),
+        position_terms: position.iter().map(|v| 0.12 * v).collect(),
+    }
+}
+
+#[test]
+fn a_spacetime_set_is_drawn_at_each_views_time_as_the_cpu_form_draws_it() {
+    let mut renderer = Renderer::new(GpuContext::new().expect("adapter")).expect("renderer");
+    let side = 32;
+    let t = targets(side);
+    let static_set = cloud(60, 21);
+    let model = TimeModel {
+        period: 6,
+        colour_harmonics: 2,
+        position_harmonics: 1,
+    };
+    let trained = with_time(cloud(40, 22), model, 23);
+    let units = unit(&trained.canonical);
+    // One camera at two times (the seam's other side included: centres reach 6).
+    let views: Vec<ViewTargets<'_>> = [0.5, 5.75]
+        .into_iter()
+        .map(|time| ViewTargets {
+            camera: camera(side),
+            time,
+            rgb: &t.rgb,
+            weight: &t.weight,
+            depth: Some(&t.depth),
+            previous: None,
+            weight_sum: (side * side) as f32,
+            outside: [0.0; OUTSIDE_SUMS],
+        })
+        .collect();
+    let input = TrainedInput {
+        gaussians: SceneInput::from(&trained.canonical),
+        time: Some(trained.time_input()),
+        ..fresh(&trained.canonical, &units)
+    };
+    let mut s = TrainSession::new(
+        &renderer,
+        SceneInput::from(&static_set),
+        input,
+        &views,
+        config(),
+    )
+    .expect("session");
+    s.reserve_frames(&mut renderer).expect("reserve");
+    let n = trained.len();
+    let mut frames = Vec::new();
+    for view in [0, 1, 1, 0] {
+        let params = s.state().expect("state").params;
+        let now = SpacetimeSet::from_packed(&params, n, 1, model);
+        let mut scene = static_set.clone();
+        scene.extend_from(&now.at(views[view].time));
+        s.step(&mut renderer, view).expect("step");
+        let got = s.read_render(&renderer).expect("render");
+        let (want, _) = renderer
+            .forward(&SceneInput::from(&scene), &camera(side), &config().settings)
+            .expect("forward");
+        // The evaluate pass sums the Fourier terms as torch's einsum does, then adds them;
+        // the CPU form adds them one by one: the frames differ by float32 rounding only
+        // (measured: 3e-6).
+        let worst = got
+            .iter()
+            .zip(&want)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst < 2e-5, "view {view}: the frames differ by {worst}");
+        frames.push(got);
+    }
+    let moved = frames[0]
+        .iter()
+        .zip(&frames[1])
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(moved > 0.01, "the two times draw the same frame ({moved})");
+    // The state round-trips with its time sections; a set of the other kind is refused.
+    let state = s.state().expect("state");
+    assert_eq!(
+        state.params.len(),
+        n * (11 + 12 + model.floats_per_gaussian())
+    );
+    let now = SpacetimeSet::from_packed(&state.params, n, 1, model);
+    let again = TrainedInput {
+        gaussians: SceneInput::from(&now.canonical),
+        time: Some(now.time_input()),
+        unit: &state.unit,
+        exp_avg: Some(&state.exp_avg),
+        exp_avg_sq: Some(&state.exp_avg_sq),
+        grad_accum: Some(&state.grad_accum),
+        grad_count: Some(&state.grad_count),
+        adam_steps: state.adam_steps,
+    };
+    s.set_trained(again).expect("set");
+    assert_eq!(s.state().expect("state"), state);
+    let plain = fresh(&now.canonical, &units);
+    assert!(matches!(
+        s.set_trained(plain),
+        Err(RasterError::InvalidInput(m)) if m.contains("not a set of Gaussians")
+    ));
 }

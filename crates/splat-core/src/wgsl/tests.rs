@@ -7,6 +7,7 @@ use super::{GpuStruct, KernelModule, StructLayout};
 use crate::raster::params::{Projected, RenderParams};
 use crate::raster::sort::{DispatchPlan, SortPass};
 use crate::train::adam::AdamParams;
+use crate::train::evaluate::TimeParams;
 use crate::train::losses::LossParams;
 
 /// The Rust side of every shared struct.
@@ -18,6 +19,7 @@ fn rust_structs() -> Vec<StructLayout> {
         SortPass::LAYOUT,
         AdamParams::LAYOUT,
         LossParams::LAYOUT,
+        TimeParams::LAYOUT,
     ]
 }
 
