@@ -210,14 +210,14 @@ def moving_share(scene_yaml: Path, output: Path) -> float:
     return float(np.mean(shares)) if shares else 0.0
 
 
-def region_quality(kind: str, seed: int, frames: int, output: Path) -> dict[str, Any]:
+def region_quality(kind: str, seed: int, frames: int, scene: Any) -> dict[str, Any]:
     """Against ground truth, through CAMERAS_PER_FRAME cameras that see what moves (the same
     cameras at every time): per frame, PSNR over the moving pixels and over the static ones;
     per frame t, the moving pixels' PSNR at t + 0.5 (between two trained timestamps: a
     version-1 scene shows t there, a spacetime one its functions at t + 0.5); and over the
     loop, the moving pixels' temporal error, mean |(R₍t+1₎ − R₍t₎) − (G₍t+1₎ − G₍t₎)|, and
-    flicker, mean |R₍t+1₎ − R₍t₎|, beside the ground truth's own, mean |G₍t+1₎ − G₍t₎|."""
-    from pano4d import ply4d
+    flicker, mean |R₍t+1₎ − R₍t₎|, beside the ground truth's own, mean |G₍t+1₎ − G₍t₎|.
+    ``scene``: a ``ply4d.Scene4D`` (``scene_at``)."""
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
     from pano4d.renderer import render
@@ -227,7 +227,6 @@ def region_quality(kind: str, seed: int, frames: int, output: Path) -> dict[str,
 
     world = SCENE_KINDS[kind](seed, frames)
     median = median_scene_depth(world)
-    scene = ply4d.read(output / "scene.ply4d")
     gen = torch.Generator().manual_seed(seed + 4242)
     # Directions that see what moves: the moving pixels of a small panorama.
     dirs = equirect_directions(256, 128).view(-1, 3)
@@ -245,7 +244,7 @@ def region_quality(kind: str, seed: int, frames: int, output: Path) -> dict[str,
     def pair(t: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """(render, truth) per camera at time t."""
         with torch.no_grad():
-            g = scene.at(t)
+            g = scene_at(scene, t)
             return [
                 (render(g, cam, antialiased=scene.antialiased).rgb.clamp(0, 1).cpu(),
                  render_view(world, cam, t)[0])
@@ -278,6 +277,17 @@ def region_quality(kind: str, seed: int, frames: int, output: Path) -> dict[str,
         "flicker": float(np.mean(flicker)) if flicker else math.nan,
         "truth_flicker": float(np.mean(truth_flicker)) if truth_flicker else math.nan,
     }
+
+
+def scene_at(scene: Any, t: float) -> Any:
+    """The Gaussians of ``scene`` (a ply4d.Scene4D) at real time ``t`` in frames: a spacetime
+    set evaluated there, one set per timestamp held until the next."""
+    from pano4d.gaussians import Gaussians
+    from pano4d.spacetime import SpacetimeGaussians
+
+    if isinstance(scene.dynamic, SpacetimeGaussians):
+        return Gaussians.cat([scene.static, scene.dynamic.at(t)])
+    return scene.at(math.floor(t) % scene.num_times)
 
 
 def dynamic_bytes(path: Path) -> int:
@@ -322,7 +332,10 @@ def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any
     }
     row["dynamic_bytes"] = dynamic_bytes(output / "scene.ply4d")
     if case["kind"] != "lake":
-        row.update(region_quality(case["kind"], case["seed"], case["frames"], output))
+        from pano4d import ply4d
+
+        scene = ply4d.read(output / "scene.ply4d")
+        row.update(region_quality(case["kind"], case["seed"], case["frames"], scene))
     return row
 
 

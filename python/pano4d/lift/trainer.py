@@ -44,6 +44,10 @@ from pano4d.spacetime import SpacetimeGaussians
 ADAM_EPS = 1e-15  # 3DGS's
 ADAM_BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, what 3DGS trains with
 SH_REST_LR_DIVISOR = 20  # the higher SH degrees learn 20× slower than degree 0 (3DGS)
+# A spacetime set's colour terms learn 5× slower than the SH DC: each step sees one time, and
+# at lr_color the terms chase it (landscape, draft, 14 frames: 25.6 dB in the moving region at
+# lr_color, 27.0 at a fifth, 26.8 at a twentieth; bench/RESULTS.md, "One dynamic set").
+COLOUR_TERMS_LR_DIVISOR = 5
 
 # What a trainer optimises, and what its result() gives back: the same kind.
 TrainedSet = TypeVar("TrainedSet", Gaussians, SpacetimeGaussians)
@@ -119,8 +123,8 @@ class Knobs(OptimisationKnobs):
 def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
     """Adam's learning rate per parameter group (the groups of GaussianTrainer.params and of
     the resident trainer's TrainSettings), a spacetime set's time parameters' last: its
-    colour terms learn as the SH DC, its position terms as the means (in the same offset
-    units), its centre times and log-widths at their own rates."""
+    colour terms learn as the SH DC / COLOUR_TERMS_LR_DIVISOR, its position terms as the
+    means (in the same offset units), its centre times and log-widths at their own rates."""
     return {
         "offsets": knobs.lr_position,
         "log_scales": knobs.lr_scale,
@@ -128,7 +132,7 @@ def learning_rates(knobs: OptimisationKnobs) -> dict[str, float]:
         "opacity_logits": knobs.lr_opacity,
         "sh_dc": knobs.lr_color,
         "sh_rest": knobs.lr_color / SH_REST_LR_DIVISOR,
-        "colour_terms": knobs.lr_color,
+        "colour_terms": knobs.lr_color / COLOUR_TERMS_LR_DIVISOR,
         "position_terms": knobs.lr_position,
         "time_centre": knobs.lr_time_centre,
         "time_log_width": knobs.lr_time_width,

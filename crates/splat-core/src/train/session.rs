@@ -129,7 +129,8 @@ struct View {
     previous: Option<wgpu::Buffer>,
     /// The static set's own render of this view, made by the first
     /// [`TrainSession::reserve_frames`] (the static set and the camera do not change in a
-    /// session): the steps copy the tiles that no trained Gaussian reaches from it.
+    /// session; views of one camera at several times share it): the steps copy the tiles
+    /// that no trained Gaussian reaches from it.
     static_render: Option<wgpu::Buffer>,
 }
 
@@ -767,8 +768,15 @@ impl TrainSession {
     /// also renders the static set alone from each view, which the steps then copy where no
     /// trained Gaussian reaches (without it, they blend every tile).
     pub fn reserve_frames(&mut self, renderer: &mut Renderer) -> Result<(), RasterError> {
+        // One frame per camera, at the first time it is seen: a camera's frames at other
+        // times draw the same Gaussians but for their opacities and small moves, and a
+        // frame that outgrows the room still grows it (`check_frames`). A spacetime stage
+        // sees each camera at every timestamp: one frame a camera, not one a timestamp.
         for index in 0..self.views.len() {
             let View { camera, time, .. } = self.views[index];
+            if self.views[..index].iter().any(|seen| seen.camera == camera) {
+                continue;
+            }
             self.set_time(time);
             self.evaluate()?;
             renderer.encode_frame(self.scene_buffer(), &camera, &self.config.settings, None)?;
@@ -840,6 +848,15 @@ impl TrainSession {
                 continue;
             }
             let camera = self.views[index].camera;
+            // The same camera at another time shares its render.
+            let shared = self.views[..index]
+                .iter()
+                .find(|seen| seen.camera == camera)
+                .and_then(|seen| seen.static_render.clone());
+            if shared.is_some() {
+                self.views[index].static_render = shared;
+                continue;
+            }
             renderer.encode_frame(static_set.clone(), &camera, &self.config.settings, None)?;
             let floats = PIXEL_CHANNELS as u64 * (camera.width * camera.height) as u64;
             let kept = storage(&self.device, "static render", floats);
