@@ -106,6 +106,33 @@ def test_a_run_killed_inside_a_stage_resumes_there_and_ends_as_if_never_killed(
     assert_same_scene(reference, folder)
 
 
+def test_the_spacetime_stage_killed_inside_resumes_there_and_ends_as_if_never_killed(
+    reference: Path,
+) -> None:
+    # One dynamic set for every timestamp: its optimisation checkpoints like the static
+    # set's (the (view, time) generator's state in it), and a rerun after a kill ends with
+    # the same version-2 scene as a run never killed. The static set is the reference's.
+    runs = []
+    for name, kill_at in (("spacetime", None), ("spacetime-killed", "dynamic:9")):
+        folder = reference.with_name(name)
+        shutil.copytree(reference.with_name("pristine"), folder)
+        yaml = folder / "scene.yaml"
+        yaml.write_text(
+            yaml.read_text().replace("overrides: {", "overrides: {dynamic_model: spacetime, ")
+        )
+        if kill_at is not None:
+            assert train(folder, kill_at) == SIGKILLED
+            everything_reads_back(folder / "output")
+        assert train(folder) == 0
+        runs.append(folder)
+    assert metrics(runs[1])["resumed_at"]["dynamic"] == {"step": 8}
+    assert ply4d.open(runs[0] / "output" / "scene.ply4d").version == 2
+    assert metrics(runs[0])["gaussians"]["dynamic_model"] == "spacetime"
+    assert_same_scene(*runs)
+    static = [ply4d.open(f / "output" / "scene.ply4d").static() for f in (reference, runs[0])]
+    assert torch.equal(static[0].means, static[1].means)  # the knob keeps the static stage
+
+
 def test_a_config_change_discards_exactly_the_stages_it_affects(reference: Path) -> None:
     folder = reference.with_name("longer")
     shutil.copytree(reference.with_name("pristine"), folder)

@@ -14,7 +14,10 @@ after a kill skips what is done and resumes an optimisation from its last checkp
                         masked out;
 6. ``fit_dynamic``      per timestamp, the dynamic set, warm-started from t − 1 (its
                         colours moved by the frame's change) and optimised against the
-                        frozen static set, in the views that see it;
+                        frozen static set, in the views that see it; or, with the knob
+                        ``dynamic_model: spacetime``, ``fit_spacetime``: one set for every
+                        timestamp, each Gaussian with functions of time
+                        (``pano4d.spacetime``), optimised once on (view, time) pairs;
 then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json, and
 each optimisation's ``TrainLog`` (``lift.diagnosis``: loss terms, densify-and-prune counts,
 kept in the stage checkpoints with the trainer) as densify.jsonl, losses.json and loss.png.
