@@ -225,6 +225,13 @@ def test_unknown_override_suggests_the_knob(scene_dir: Path) -> None:
     assert "'sh_degree' expects an integer, got 1.5" in message
 
 
+def test_a_knob_of_words_takes_one_of_them(scene_dir: Path) -> None:
+    message = load_error(scene_dir, MINIMAL + "overrides: {dynamic_model: spacetim}\n")
+    assert "'dynamic_model' expects 'per_timestamp' or 'spacetime', got 'spacetim'" in message
+    cfg = load_config(write_yaml(scene_dir, MINIMAL + "overrides: {dynamic_model: spacetime}\n"))
+    assert cfg.resolved_preset().dynamic_model == "spacetime"
+
+
 def test_a_knob_outside_its_bounds_is_named_with_them(scene_dir: Path) -> None:
     knobs = "{later_iteration_share: 0, sh_degree: 4, gaussian_iterations: 0, lr_color: -0.1}"
     message = load_error(scene_dir, MINIMAL + f"overrides: {knobs}\n")

@@ -402,7 +402,12 @@ class SceneConfig(_Section):
                 problems.append(f"unknown knob '{key}' (got {shown}){_suggest(key, knobs)}")
                 continue
             expected = knobs[key].annotation
-            if type(value) is not expected and not (expected is float and type(value) is int):
+            if typing.get_origin(expected) is Literal:  # one of some words
+                choices = typing.get_args(expected)
+                if value not in choices:
+                    words = " or ".join(repr(c) for c in choices)
+                    problems.append(f"'{key}' expects {words}, got {shown}")
+            elif type(value) is not expected and not (expected is float and type(value) is int):
                 problems.append(f"'{key}' expects {_TYPE_WORDS[expected]}, got {shown}")
             elif bounds := _outside_bounds(knobs[key], value):
                 problems.append(f"'{key}' expects a value {bounds}, got {shown}")
