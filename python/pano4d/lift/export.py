@@ -271,10 +271,11 @@ def run_metrics(
     n_static = len(scene.static)
     n_dynamic = dynamic_counts(scene)
     stored = n_static + sum(n_dynamic)
-    # every timestamp stored whole
-    whole = scene.num_times * n_static + sum(
-        len(scene.at(t)) - n_static for t in range(scene.num_times)
-    )
+    # Every timestamp stored whole: the static set and its dynamic Gaussians (a spacetime
+    # set's are all of them at every time).
+    spacetime = isinstance(scene.dynamic, SpacetimeGaussians)
+    per_time = n_dynamic * scene.num_times if spacetime else n_dynamic
+    whole = sum(n_static + n for n in per_time)
     size = path.stat().st_size
     bytes_per = size / max(stored, 1)
     iters = inputs.knobs.gaussian_iterations
