@@ -44,7 +44,7 @@ from pano4d.config import SceneConfig, load_config
 from pano4d.fsutil import write_json_atomic
 from pano4d.gaussians import Gaussians
 from pano4d.images import read_image
-from pano4d.lift.views_export import CV_TO_GL, ViewsDataset, export_views
+from pano4d.lift.views_export import ViewsDataset, export_views
 
 OUT = Path(__file__).resolve().parent / "out"
 # The pinned sources: folder under <cache>/src → (repository, commit or tag).
@@ -172,8 +172,7 @@ def make_views(root: Path, width: int, preset: str) -> tuple[SceneConfig, ViewsD
 def camera_of(frame: dict[str, Any]) -> Camera:
     """A transforms.json frame as our Camera (its OpenGL camera-to-world back to OpenCV)."""
     K = [[frame["fl_x"], 0.0, frame["cx"]], [0.0, frame["fl_y"], frame["cy"]], [0.0, 0.0, 1.0]]
-    c2w = torch.tensor(frame["transform_matrix"], dtype=torch.float64) @ CV_TO_GL
-    return Camera(K, torch.linalg.inv(c2w), frame["w"], frame["h"])
+    return Camera.from_camera_to_world_gl(frame["transform_matrix"], K, frame["w"], frame["h"])
 
 
 # --- ours, in a child process (its own peak memory) ---------------------------------------------

@@ -15,6 +15,10 @@ import torch
 
 WORLD_UP = (0.0, 0.0, 1.0)
 
+# OpenCV camera axes (x right, y down, z forward) to OpenGL ones (x right, y up, z back): the
+# axes of nerfstudio's transform_matrix and camera_to_world (its own inverse).
+CV_TO_GL = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+
 
 def _as_vec3(v: Sequence[float] | torch.Tensor) -> torch.Tensor:
     t = torch.as_tensor(v, dtype=torch.float64).reshape(3)
@@ -215,6 +219,19 @@ class Camera:
         """Per-pixel factor (H, W) that turns z-depth into ray length."""
         rays = self.pixel_rays(self.pixel_grid(torch.float64))
         return torch.linalg.norm(rays, dim=-1).to(dtype)
+
+    # --- OpenGL camera-to-world (nerfstudio's transforms.json and camera paths) ----------
+    def camera_to_world_gl(self) -> torch.Tensor:
+        """Camera-to-world (4, 4), float64, with OpenGL camera axes (x right, y up, z back)."""
+        return torch.linalg.inv(self.world_to_cam) @ CV_TO_GL
+
+    @classmethod
+    def from_camera_to_world_gl(
+        cls, camera_to_world: torch.Tensor, K: torch.Tensor, width: int, height: int
+    ) -> Camera:
+        """The camera whose ``camera_to_world_gl()`` is ``camera_to_world`` (4, 4)."""
+        c2w = torch.as_tensor(camera_to_world, dtype=torch.float64) @ CV_TO_GL
+        return cls(K, torch.linalg.inv(c2w), width, height)
 
     # --- serialisation (gt/views.json, viewer poses) ------------------------------------
     def to_dict(self) -> dict[str, Any]:

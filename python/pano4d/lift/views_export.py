@@ -53,9 +53,6 @@ from pano4d.lift.pipeline import (
 from pano4d.progress import Bars
 from pano4d.resample import equirect_to_perspective
 
-# OpenCV camera axes (x right, y down, z forward) to OpenGL ones (x right, y up, z back).
-CV_TO_GL = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
-
 
 @dataclass(frozen=True)
 class ViewsDataset:
@@ -65,11 +62,6 @@ class ViewsDataset:
     points: int
     scene_scale: float
     initial: Gaussians  # frame T's initial Gaussians, whose centres are the points
-
-
-def camera_to_world_gl(camera: Camera) -> torch.Tensor:
-    """nerfstudio's ``transform_matrix``: camera-to-world (4, 4) with OpenGL camera axes."""
-    return torch.linalg.inv(camera.world_to_cam) @ CV_TO_GL
 
 
 def rotation_to_quaternion(R: torch.Tensor) -> list[float]:
@@ -152,7 +144,7 @@ def _frame_entry(camera: Camera, name: str) -> dict[str, Any]:
         "file_path": f"images/{name}.png",
         "depth_file_path": f"depth/{name}.npy",
         "mask_path": f"masks/{name}.png",
-        "transform_matrix": camera_to_world_gl(camera).tolist(),
+        "transform_matrix": camera.camera_to_world_gl().tolist(),
         "fl_x": camera.fx, "fl_y": camera.fy, "cx": camera.cx, "cy": camera.cy,
         "w": camera.width, "h": camera.height,
         "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
