@@ -6,7 +6,8 @@
 //! - [`ply`]: standard and SuperSplat-compressed 3DGS `.ply` files.
 //! - [`ply4d`]: the `.ply4d` 4D scene format (docs/ply4d.md).
 //! - [`raster`]: the wgpu compute rasteriser (forward and backward).
-//! - [`spacetime`]: spacetime Gaussians, one dynamic set with functions of time.
+//! - [`spacetime`]: spacetime Gaussians, one dynamic set with functions of time, evaluated
+//!   on the CPU or by a GPU pass (which the trainer and the viewer share).
 //! - [`train`]: the lifting phase's training loop resident on the device.
 //!
 //! Python bindings live in [`python`] behind the `python` feature.

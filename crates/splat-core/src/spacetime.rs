@@ -3,10 +3,18 @@
 //! its SH DC colour and its mean, an opacity that rises and falls around a centre time).
 //!
 //! The definition and its reference are Python's `pano4d.spacetime` (torch); docs/ply4d.md
-//! ("Version 2") states it; this is the CPU form the `.ply4d` reader and the viewer use,
-//! tested against the torch one (tests/test_spacetime.py).
+//! ("Version 2") states it. Here: the CPU form the `.ply4d` reader uses
+//! ([`SpacetimeSet::at`]), tested against the torch one (tests/test_spacetime.py); the GPU
+//! form, the evaluate pass (`evaluate`, with its adjoint: the training session launches
+//! both), tested against the CPU form; and [`GpuSpacetimeSet`], a set kept on the GPU and
+//! evaluated there at any time (the viewer's version-2 playback).
 
-use crate::gaussians::{sh_coeffs, GaussianSet};
+pub(crate) mod evaluate;
+mod gpu_set;
+
+pub use gpu_set::GpuSpacetimeSet;
+
+use crate::gaussians::{sh_coeffs, GaussianSet, SceneInput};
 
 /// Most Fourier terms a time model may have per quantity (a hostile file's bound).
 pub const MAX_HARMONICS: u32 = 8;
@@ -159,6 +167,23 @@ impl SpacetimeSet {
         }
         g
     }
+}
+
+/// The evaluate pass's kernel module (for the checks of the WGSL against the Rust structs).
+#[cfg(test)]
+pub(crate) fn kernel_modules() -> Vec<crate::wgsl::KernelModule> {
+    vec![evaluate::module()]
+}
+
+/// A set's parameters as a training session and the evaluate pass lay them out: its
+/// Gaussians packed ([`SceneInput::packed`]), then a spacetime set's time sections
+/// ([`TimeInput::sections`]); [`SpacetimeSet::from_packed`] reads them back.
+pub fn packed_parameters(gaussians: &SceneInput<'_>, time: Option<TimeInput<'_>>) -> Vec<f32> {
+    let mut packed = gaussians.packed();
+    for section in time.iter().flat_map(|t| t.sections()) {
+        packed.extend_from_slice(section);
+    }
+    packed
 }
 
 /// A spacetime set's time parameters, borrowed (its canonical Gaussians borrow as a

@@ -17,7 +17,7 @@ use crate::render::{save_png, FrameOptions, FrameRenderer};
 use crate::residency;
 use crate::scene::Scene;
 use crate::stream::DynamicStream;
-use crate::time::TimeControl;
+use crate::time::{TimeControl, Timeline};
 
 /// Frame-time smoothing for the fps read-out (weight of the newest frame).
 const FPS_SMOOTHING: f64 = 0.1;
@@ -63,8 +63,8 @@ impl DisplayTexture {
 /// A scene together with its playback state.
 struct OpenScene {
     scene: Arc<Scene>,
-    /// Decodes the next timestamp while this one is shown; `None` when every timestamp's
-    /// dynamic set is on the GPU.
+    /// Decodes the next timestamp while this one is shown; `None` when the dynamic sets are
+    /// on the GPU (every timestamp's, or a version-2 scene's one spacetime set).
     stream: Option<DynamicStream>,
     time: TimeControl,
 }
@@ -133,27 +133,28 @@ impl ViewerApp {
     }
 
     /// Opens a scene, replacing the current one; failures are shown in the window. Its
-    /// dynamic sets stay on the GPU when they fit the budget ([`residency`]).
+    /// dynamic sets stay on the GPU when they fit the budget ([`residency`]); a version-2
+    /// scene's spacetime set always does.
     pub fn open(&mut self, path: &Path) {
         let opened = Scene::open(path).map_err(|e| format!("Cannot open {}: {e}", path.display()));
         let loaded = opened.and_then(|scene| {
-            let resident = match &mut self.renderer {
+            let streams = match &mut self.renderer {
                 Some(renderer) => {
                     let budget = residency::budget_from_env()?;
-                    renderer.load_scene_resident(&scene, budget).is_resident()
+                    renderer.load_scene_resident(&scene, budget).streams()
                 }
-                None => false,
+                None => true,
             };
-            Ok((scene, resident))
+            Ok((scene, streams))
         });
         match loaded {
-            Ok((scene, resident)) => {
+            Ok((scene, streams)) => {
                 self.extent = scene.extent;
                 self.camera = ViewCamera::panorama_viewpoint(&self.extent);
                 let scene = Arc::new(scene);
                 self.opened = Some(OpenScene {
-                    time: TimeControl::new(&scene.timestamps),
-                    stream: (!resident).then(|| DynamicStream::new(Arc::clone(&scene))),
+                    time: TimeControl::new(&scene.timestamps, scene.timeline()),
+                    stream: streams.then(|| DynamicStream::new(Arc::clone(&scene))),
                     scene,
                 });
                 if self.renderer.is_some() {
@@ -177,9 +178,19 @@ impl ViewerApp {
         &self.camera
     }
 
-    /// The shown timestamp index.
+    /// The timestamp index at or before the shown time.
     pub fn time_index(&self) -> Option<usize> {
-        self.opened.as_ref().map(|o| o.time.index)
+        self.opened.as_ref().map(|o| o.time.index())
+    }
+
+    /// The scene's time and how it moves (e.g. its shown time in frames).
+    pub fn time(&self) -> Option<&TimeControl> {
+        self.opened.as_ref().map(|o| &o.time)
+    }
+
+    /// The time, in frames, whose Gaussians the view was last drawn with.
+    pub fn drawn_frame(&self) -> Option<f64> {
+        self.renderer.as_ref().and_then(|r| r.shown_time())
     }
 
     /// Where the scene was drawn in the last pass, in points.
@@ -266,7 +277,7 @@ impl ViewerApp {
             .display
             .as_ref()
             .is_none_or(|d| d.size() != [width, height]);
-        let time_changed = renderer.shown_time() != Some(open.time.index);
+        let time_changed = renderer.shown_time() != Some(open.time.frame());
         if !(self.dirty || size_changed || time_changed) {
             return;
         }
@@ -279,12 +290,13 @@ impl ViewerApp {
         }
         let display = self.display.as_ref().expect("created above");
         let camera = self.camera.to_camera(width, height);
-        let t = open.time.index;
         let shown = match (&mut open.stream, time_changed) {
             (_, false) => Ok(()),
-            // Every dynamic set on the GPU: a GPU-side copy.
-            (None, true) => renderer.show_time(&open.scene, t),
+            // Every dynamic set on the GPU: a GPU-side copy; or a version-2 scene's spacetime
+            // set evaluated on the GPU at the shown time.
+            (None, true) => renderer.show_time(&open.scene, open.time.frame()),
             (Some(stream), true) => {
+                let t = open.time.index();
                 let shown = stream
                     .take(t)
                     .and_then(|dynamic| renderer.show(&open.scene, t, &dynamic));
@@ -328,8 +340,8 @@ impl ViewerApp {
         let mut n = 0;
         let path = loop {
             let candidate = PathBuf::from(format!(
-                "pano4d-view-{stem}-t{:04}-{n}.png",
-                open.time.index
+                "pano4d-view-{stem}-t{}-{n}.png",
+                frame_label(open.time.frame())
             ));
             if !candidate.exists() {
                 break candidate;
@@ -502,14 +514,24 @@ impl ViewerApp {
                 egui::DragValue::new(&mut time.speed)
                     .range(0.05..=8.0)
                     .speed(0.01)
+                    .prefix("speed ")
                     .suffix("×"),
-            );
-            let mut index = time.index;
-            let last = time.count() - 1;
-            let slider = egui::Slider::new(&mut index, 0..=last).text("time");
-            ui.add_enabled(last > 0, slider);
-            if index != time.index {
-                time.set_index(index);
+            )
+            .on_hover_text("Playback speed: scene seconds per second");
+            // The slider is in frames (timestamp indices): whole ones where each timestamp
+            // is held, any real time in a version-2 scene's loop.
+            let mut frame = time.frame();
+            let slider = match time.timeline() {
+                Timeline::Held => egui::Slider::new(&mut frame, 0.0..=time.end())
+                    .integer()
+                    .text("time"),
+                Timeline::Continuous => egui::Slider::new(&mut frame, 0.0..=time.end())
+                    .max_decimals(2)
+                    .text("time"),
+            };
+            ui.add_enabled(time.end() > 0.0, slider);
+            if frame != time.frame() {
+                time.set_frame(frame);
             }
             ui.label(format!("{:.2} s", time.seconds()));
             if !open.scene.is_dynamic() {
@@ -569,6 +591,16 @@ impl ViewerApp {
                 ui.visuals().warn_fg_color,
             );
         }
+    }
+}
+
+/// The shown time in a screenshot's name: the timestamp index, with two decimals between
+/// timestamps ("0002", "0002.35").
+fn frame_label(frame: f64) -> String {
+    if frame.fract() == 0.0 {
+        format!("{:04}", frame as usize)
+    } else {
+        format!("{frame:07.2}")
     }
 }
 

@@ -65,7 +65,7 @@ pub fn render_view(
         // set_pose clamps to the viewer's zoom range; a headless view takes the FOV as given.
         camera.fov_deg = pose.fov_deg;
     }
-    renderer.show_time(scene, index)?;
+    renderer.show_time(scene, index as f64)?;
     renderer.render(
         &camera.to_camera(request.width, request.height),
         &request.options,

@@ -5,7 +5,8 @@
 //! - [`camera`]: fly/orbit camera maths, pose strings, the support hint.
 //! - [`scene`]: opening files and streaming dynamic sets per timestamp.
 //! - [`stream`]: dynamic sets decoded ahead of playback on a worker thread.
-//! - [`time`]: play, pause, loop and step through the timestamps.
+//! - [`time`]: the shown time, in frames, and how it moves: play, pause, loop, speed and
+//!   steps; continuous through a version-2 scene's loop, held at each timestamp otherwise.
 //! - [`render`]: the frame render path shared by the window, headless use and the bench.
 //! - [`residency`]: whether every timestamp's dynamic set stays on the GPU.
 //! - [`headless`]: one view to an image, without a window.

@@ -6,6 +6,9 @@
 //! set stored on the GPU when the scene is loaded, and copied on the GPU into the slot
 //! after the static set when its timestamp is shown (the draw is then the still frame's
 //! draw); or, when they do not fit, decoded and uploaded into that slot as they are shown.
+//! A version-2 scene's one spacetime set is uploaded once and evaluated into that slot by a
+//! compute pass (splat-core's, the trainer's own) whenever the shown time changes, at any
+//! real time: the draw is the still frame's draw after one pass over the dynamic Gaussians.
 //!
 //! The same [`FrameRenderer`] runs on the device egui created (the window and the UI
 //! tests) and on a device of its own (headless rendering and the benchmark).
@@ -20,6 +23,7 @@ use splat_core::raster::{
     target_texture, AdapterSummary, GpuContext, GpuScene, RasterError, RenderSettings, Renderer,
     StoredSet,
 };
+use splat_core::spacetime::{GpuSpacetimeSet, TimeModel};
 
 use crate::residency::{self, Playback};
 use crate::scene::Scene;
@@ -60,8 +64,9 @@ fn too_large_message(count: usize, need: u64, allowed: Option<u64>, adapter: &st
 
 /// Draws scenes with splat-core's forward rasteriser on one device. The Gaussians stay on
 /// the GPU: the static set is uploaded once per scene, a dynamic set is copied from its
-/// stored twin or uploaded when its timestamp is shown, and frames are drawn into a
-/// texture without a trip through the host.
+/// stored twin or uploaded when its timestamp is shown (a version-2 scene's: evaluated on
+/// the GPU at the shown time), and frames are drawn into a texture without a trip through
+/// the host.
 pub struct FrameRenderer {
     renderer: Renderer,
     adapter: AdapterSummary,
@@ -71,13 +76,15 @@ pub struct FrameRenderer {
     /// Every timestamp's dynamic set when [`Self::load_scene_resident`] kept them; empty
     /// when they are streamed.
     stored: Vec<StoredSet>,
+    /// A version-2 scene's spacetime set, uploaded at its first [`Self::show_time`].
+    spacetime: Option<GpuSpacetimeSet>,
     playback: Playback,
     /// The loaded scene's rasteriser mode ([`Scene::antialiased`]): every frame is drawn in
     /// it, so that no caller can draw a scene in the other mode than it was trained in.
     antialiased: bool,
     static_len: usize,
-    /// Timestamp index whose dynamic set is resident.
-    shown_time: Option<usize>,
+    /// The time, in frames, whose dynamic set is resident (a held timestamp's index).
+    shown_time: Option<f64>,
     dynamic_len: usize,
     /// The texture [`Self::render`] draws into and reads back.
     own_target: Option<wgpu::Texture>,
@@ -119,6 +126,7 @@ impl FrameRenderer {
             adapter,
             resident: None,
             stored: Vec::new(),
+            spacetime: None,
             playback: Playback::Streamed {
                 reason: "no scene loaded".into(),
             },
@@ -141,12 +149,19 @@ impl FrameRenderer {
 
     /// Forgets the previous scene and takes `scene`'s rasteriser mode; dynamic sets will be
     /// streamed (decoded and uploaded when shown), and the next [`Self::show_time`] uploads
-    /// `scene`'s static set. For a single view this is all that is needed.
+    /// `scene`'s static set (and a version-2 scene's spacetime set, evaluated on the GPU
+    /// from then on). For a single view this is all that is needed.
     pub fn load_scene(&mut self, scene: &Scene) {
         self.resident = None;
         self.stored = Vec::new();
-        self.playback = Playback::Streamed {
-            reason: "loaded for streaming".into(),
+        self.spacetime = None;
+        self.playback = match scene.time_model() {
+            Some(model) => Playback::Evaluated {
+                bytes: spacetime_bytes(scene, &model),
+            },
+            None => Playback::Streamed {
+                reason: "loaded for streaming".into(),
+            },
         };
         self.antialiased = scene.antialiased;
         self.static_len = scene.static_set.len();
@@ -158,9 +173,14 @@ impl FrameRenderer {
     /// on the GPU when [`residency::plan`] says they fit in `budget` bytes (the static set
     /// is uploaded now too), else they are streamed as with [`Self::load_scene`]. Anything
     /// that fails on the way (a damaged set, GPU memory) also leaves them streamed, so
-    /// that its error shows at the timestamp it concerns, as when streaming.
+    /// that its error shows at the timestamp it concerns, as when streaming. A version-2
+    /// scene has one dynamic set for every time, kept on the GPU whatever the budget
+    /// ([`Playback::Evaluated`], as [`Self::load_scene`] leaves it).
     pub fn load_scene_resident(&mut self, scene: &Scene, budget: u64) -> &Playback {
         self.load_scene(scene);
+        if scene.time_model().is_some() {
+            return &self.playback;
+        }
         let planned = scene.dynamic_counts().and_then(|counts| {
             let k = sh_coeffs(scene.sh_degree);
             let max_buffer_size = self.device().limits().max_buffer_size;
@@ -208,10 +228,16 @@ impl FrameRenderer {
         stored.map_err(|e| e.to_string())
     }
 
-    /// Makes timestamp `t` the one drawn unless it is the one shown: a GPU-side copy of
-    /// its stored dynamic set, or (streaming) decoding and uploading it.
-    pub fn show_time(&mut self, scene: &Scene, t: usize) -> Result<(), String> {
-        if self.shown_time == Some(t) {
+    /// Makes the scene at time `frame` (in frames) the one drawn unless it is the one
+    /// shown: a version-2 scene's spacetime set evaluated there on the GPU; any other
+    /// scene's timestamp at or before it (each held until the next): a GPU-side copy of its
+    /// stored dynamic set, or (streaming) decoding and uploading it.
+    pub fn show_time(&mut self, scene: &Scene, frame: f64) -> Result<(), String> {
+        if scene.time_model().is_some() {
+            return self.show_evaluated(scene, frame);
+        }
+        let t = frame.max(0.0).floor() as usize;
+        if self.shown_time == Some(t as f64) {
             return Ok(());
         }
         let Some(stored) = self.stored.get(t) else {
@@ -226,7 +252,52 @@ impl FrameRenderer {
             .copy_from(&ctx.device, &ctx.queue, self.static_len, stored)
             .map_err(|e| e.to_string())?;
         self.dynamic_len = stored.len();
-        self.shown_time = Some(t);
+        self.shown_time = Some(t as f64);
+        Ok(())
+    }
+
+    /// A version-2 scene at `frame`: its spacetime set evaluated on the GPU into the slot
+    /// after the static set, both uploaded the first time.
+    fn show_evaluated(&mut self, scene: &Scene, frame: f64) -> Result<(), String> {
+        if self.shown_time == Some(frame) {
+            return Ok(());
+        }
+        if self.spacetime.is_none() {
+            self.keep_spacetime(scene)?;
+        }
+        let ctx = self.renderer.context();
+        let set = self.spacetime.as_ref().expect("kept above");
+        let resident = self.resident.as_mut().expect("allocated with the set");
+        set.evaluate_into(&ctx.device, &ctx.queue, resident, self.static_len, frame)
+            .map_err(|e| e.to_string())?;
+        self.dynamic_len = set.len();
+        self.shown_time = Some(frame);
+        Ok(())
+    }
+
+    /// Uploads the static set and `scene`'s spacetime set, with room for its evaluation.
+    fn keep_spacetime(&mut self, scene: &Scene) -> Result<(), String> {
+        let set = scene.spacetime_set()?;
+        self.resident = Some(self.allocate(self.static_len + set.len(), scene.sh_degree)?);
+        self.write(0, &scene.static_set)?;
+        let ctx = self.renderer.context();
+        let out_of_memory = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let uploaded = GpuSpacetimeSet::upload(&ctx.device, &ctx.queue, &set);
+        if pollster::block_on(out_of_memory.pop()).is_some() {
+            return Err(format!(
+                "{} ran out of memory keeping the spacetime set",
+                self.adapter.name
+            ));
+        }
+        let uploaded = uploaded.map_err(|e| match e {
+            RasterError::TooLarge {
+                gaussians,
+                bytes,
+                allowed,
+            } => too_large_message(gaussians, bytes, Some(allowed), &self.adapter.name),
+            e => e.to_string(),
+        })?;
+        self.spacetime = Some(uploaded);
         Ok(())
     }
 
@@ -249,7 +320,7 @@ impl FrameRenderer {
         }
         self.write(self.static_len, dynamic)?;
         self.dynamic_len = dynamic.len();
-        self.shown_time = Some(t);
+        self.shown_time = Some(t as f64);
         Ok(())
     }
 
@@ -282,7 +353,8 @@ impl FrameRenderer {
             .map_err(|e| e.to_string())
     }
 
-    pub fn shown_time(&self) -> Option<usize> {
+    /// The time, in frames, whose Gaussians are drawn.
+    pub fn shown_time(&self) -> Option<f64> {
         self.shown_time
     }
 
@@ -371,6 +443,16 @@ impl FrameRenderer {
         RgbaImage::from_raw(target.width(), target.height(), bytes)
             .ok_or_else(|| "the read-back has the wrong size".into())
     }
+}
+
+/// Bytes a version-2 scene's spacetime set takes on the GPU.
+fn spacetime_bytes(scene: &Scene, model: &TimeModel) -> u64 {
+    let n = scene
+        .dynamic_counts()
+        .ok()
+        .and_then(|counts| counts.first().copied())
+        .unwrap_or(0);
+    GpuSpacetimeSet::bytes_for(n, sh_coeffs(scene.sh_degree), model)
 }
 
 /// Writes `image` as a PNG at `path` atomically (a temporary file beside it, then rename).
@@ -477,7 +559,12 @@ mod tests {
     }
 
     fn frame(renderer: &mut FrameRenderer, scene: &Scene, t: usize, scale: f32) -> RgbaImage {
-        renderer.show_time(scene, t).unwrap();
+        frame_at(renderer, scene, t as f64, scale)
+    }
+
+    /// The scene at time `frame` (in frames), as [`frame`] draws it.
+    fn frame_at(renderer: &mut FrameRenderer, scene: &Scene, frame: f64, scale: f32) -> RgbaImage {
+        renderer.show_time(scene, frame).unwrap();
         let camera = ViewCamera::panorama_viewpoint(&scene.extent).to_camera(96, 64);
         let options = FrameOptions {
             splat_scale: scale,
@@ -492,34 +579,94 @@ mod tests {
         frame(&mut renderer, scene, t, 1.0)
     }
 
-    #[test]
-    fn a_version_2_scene_draws_as_the_version_1_scene_of_its_evaluated_sets() {
+    /// Channel values by which two frames differ at most.
+    fn worst_channel(a: &RgbaImage, b: &RgbaImage) -> u8 {
+        assert_eq!(a.dimensions(), b.dimensions());
+        a.as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// The 4-frame version-2 scene `synthetic::spacetime_scene` makes, opened; and the same
+    /// scene as a version-1 file whose timestamps are its spacetime set evaluated on the CPU
+    /// at `times`.
+    fn open_spacetime(tag: &str, times: &[f64]) -> (Scene, Scene) {
         let generated = synthetic::spacetime_scene(3_000, 400, 4, 1, 5);
-        let dir = std::env::temp_dir().join(format!("pano4d-render-v2-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!("pano4d-render-{tag}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("scene.ply4d");
         ply4d::write_spacetime(&path, &generated).unwrap();
         let spacetime = Scene::open(&path).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
+        let mut meta = generated.meta.clone();
+        meta.timestamps = times.iter().map(|t| t / synthetic::FPS).collect();
         let evaluated = open_generated(
-            "v2-evaluated",
+            &format!("{tag}-evaluated"),
             &ply4d::Scene4d {
                 static_set: generated.static_set.clone(),
-                dynamic: (0..4).map(|t| generated.dynamic.at(t as f64)).collect(),
-                meta: generated.meta.clone(),
+                dynamic: times.iter().map(|&t| generated.dynamic.at(t)).collect(),
+                meta,
             },
         );
+        (spacetime, evaluated)
+    }
+
+    #[test]
+    fn a_version_2_scene_draws_as_the_version_1_scene_of_its_evaluated_sets() {
+        let (spacetime, evaluated) = open_spacetime("v2", &[0.0, 1.0, 2.0, 3.0]);
         let mut renderer = FrameRenderer::headless().unwrap();
         renderer.load_scene(&spacetime);
+        assert_eq!(
+            *renderer.playback(),
+            Playback::Evaluated {
+                bytes: GpuSpacetimeSet::bytes_for(400, 4, &spacetime.time_model().unwrap())
+            }
+        );
         for t in [0, 1, 2, 3, 0] {
             let got = frame(&mut renderer, &spacetime, t, 1.0);
+            assert_eq!(renderer.counts(), (3_000, 400));
             assert!(got.pixels().any(|p| p.0[..3] != [0, 0, 0]), "nothing drawn");
-            assert!(got == fresh_frame(&evaluated, t), "timestamp {t}");
+            // Evaluated on the GPU, summed in another order than on the CPU: float32
+            // rounding apart, which may tip a channel by a level.
+            let worst = worst_channel(&got, &fresh_frame(&evaluated, t));
+            assert!(worst <= 1, "timestamp {t}: off by {worst} levels");
         }
         assert!(
-            fresh_frame(&evaluated, 0) != fresh_frame(&evaluated, 2),
+            worst_channel(&fresh_frame(&evaluated, 0), &fresh_frame(&evaluated, 2)) > 100,
             "the ball bobs"
         );
+    }
+
+    #[test]
+    fn a_version_2_scene_is_drawn_at_any_time_and_loops() {
+        // Times between frames, where the held frame would show another set.
+        let times = [0.5, 1.25, 2.7];
+        let (spacetime, evaluated) = open_spacetime("v2-any-time", &times);
+        let mut renderer = FrameRenderer::headless().unwrap();
+        // Loaded for playback too: no budget applies, nothing is streamed.
+        let playback = renderer.load_scene_resident(&spacetime, 0).clone();
+        assert!(
+            matches!(playback, Playback::Evaluated { .. }),
+            "{playback:?}"
+        );
+        assert!(!playback.streams());
+        for (i, &time) in times.iter().enumerate() {
+            let want = fresh_frame(&evaluated, i);
+            for shown in [time, time + 4.0, time - 8.0] {
+                let got = frame_at(&mut renderer, &spacetime, shown, 1.0);
+                assert_eq!(renderer.shown_time(), Some(shown));
+                let worst = worst_channel(&got, &want);
+                assert!(worst <= 1, "t = {shown}: off by {worst} levels");
+            }
+            let held = frame(&mut renderer, &spacetime, time.floor() as usize, 1.0);
+            assert!(
+                worst_channel(&held, &want) > 10,
+                "t = {time} draws what its whole frame draws"
+            );
+        }
     }
 
     #[test]

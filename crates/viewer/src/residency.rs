@@ -1,6 +1,8 @@
 //! Whether every timestamp's dynamic set is kept on the GPU, so that moving the time
 //! slider or playing costs what a still frame costs (a GPU-side copy of the shown set
 //! after the static set, instead of a decode and an upload), or streamed as it is shown.
+//! A version-2 scene has one dynamic set for every time, kept on the GPU and evaluated
+//! there at the shown time ([`Playback::Evaluated`]); no budget applies to it.
 //!
 //! They are kept when each set fits one GPU buffer (the device's `max_buffer_size`: the
 //! stored sets are only copied from, never bound, so the smaller storage-binding limit
@@ -26,11 +28,20 @@ pub enum Playback {
     Resident { bytes: u64 },
     /// Each set is decoded and uploaded when its timestamp is shown, because of `reason`.
     Streamed { reason: String },
+    /// A version-2 scene's spacetime set is on the GPU, `bytes`, and evaluated there at the
+    /// shown time (splat_core::spacetime::GpuSpacetimeSet).
+    Evaluated { bytes: u64 },
 }
 
 impl Playback {
     pub fn is_resident(&self) -> bool {
         matches!(self, Self::Resident { .. })
+    }
+
+    /// Whether dynamic sets are decoded on the host as they are shown (what
+    /// [`crate::stream::DynamicStream`] does ahead of playback).
+    pub fn streams(&self) -> bool {
+        matches!(self, Self::Streamed { .. })
     }
 
     /// One line for the side panel.
@@ -40,6 +51,12 @@ impl Playback {
                 format!("all on the GPU ({} MiB)", bytes.div_ceil(MIB))
             }
             Self::Streamed { reason } => format!("streamed: {reason}"),
+            Self::Evaluated { bytes } => {
+                format!(
+                    "any time, evaluated on the GPU ({} MiB)",
+                    bytes.div_ceil(MIB)
+                )
+            }
         }
     }
 }

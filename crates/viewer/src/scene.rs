@@ -1,6 +1,7 @@
 //! What the viewer opens: a `.ply4d` 4D scene (memory-mapped; the static set is decoded
-//! once, each dynamic set when its timestamp is shown), a plain 3DGS `.ply` (one static
-//! set), or a folder of per-frame `.ply` files (a sequence, one dynamic set per file).
+//! once; version 1: each dynamic set when its timestamp is shown; version 2: the one
+//! spacetime set, once, for the GPU to evaluate), a plain 3DGS `.ply` (one static set), or a
+//! folder of per-frame `.ply` files (a sequence, one dynamic set per file).
 //!
 //! The format is recognised by the file's first bytes, not its name, so a misnamed file
 //! gets a clear message instead of a parse error deep in the wrong reader.
@@ -12,8 +13,10 @@ use std::path::{Path, PathBuf};
 use splat_core::gaussians::GaussianSet;
 use splat_core::ply::{self, FileError};
 use splat_core::ply4d::{self, Ply4dReader};
+use splat_core::spacetime::{SpacetimeSet, TimeModel};
 
 use crate::camera::SceneExtent;
+use crate::time::Timeline;
 
 /// Frame rate given to a folder of `.ply` files, which records none.
 pub const SEQUENCE_FPS: f64 = 30.0;
@@ -204,8 +207,35 @@ impl Scene {
         }
     }
 
+    /// A version-2 scene's time model: its dynamic part is one spacetime set, a function of
+    /// time (None for every other scene).
+    pub fn time_model(&self) -> Option<TimeModel> {
+        match &self.source {
+            Source::Ply4d(reader) => reader.header().motion,
+            Source::Ply | Source::Sequence(_) => None,
+        }
+    }
+
+    /// How the shown time moves: continuously through a version-2 scene's function of time,
+    /// else held at each timestamp until the next.
+    pub fn timeline(&self) -> Timeline {
+        match self.time_model() {
+            Some(_) => Timeline::Continuous,
+            None => Timeline::Held,
+        }
+    }
+
+    /// A version-2 scene's spacetime set as stored, decoded from the memory-mapped file.
+    pub fn spacetime_set(&self) -> Result<SpacetimeSet, String> {
+        match &self.source {
+            Source::Ply4d(reader) => reader.read_spacetime().map_err(describe),
+            Source::Ply | Source::Sequence(_) => Err(format!("{} has no spacetime set", self.name)),
+        }
+    }
+
     /// The dynamic set of timestamp `t` (empty for a static scene), decoded from the
-    /// memory-mapped file or read from the frame's `.ply`.
+    /// memory-mapped file (a version-2 scene's evaluated at `t` on the CPU) or read from the
+    /// frame's `.ply`.
     pub fn dynamic_set(&self, t: usize) -> Result<GaussianSet, String> {
         if t >= self.num_times() {
             return Err(format!(
@@ -274,6 +304,8 @@ mod tests {
         assert_eq!(opened.dynamic_set(3).unwrap().len(), 200);
         assert!(opened.dynamic_set(4).is_err());
         assert_eq!(opened.index_at(1e9), 3);
+        assert_eq!(opened.timeline(), Timeline::Held);
+        assert!(opened.spacetime_set().is_err());
 
         let p = dir.join("frame.ply");
         ply::write_ply(&p, &scene.static_set).unwrap();
@@ -313,6 +345,9 @@ mod tests {
         assert_eq!(opened.num_times(), 6);
         assert!(opened.is_dynamic());
         assert_eq!(opened.static_set, scene.static_set);
+        assert_eq!(opened.timeline(), Timeline::Continuous);
+        assert_eq!(opened.time_model(), Some(scene.dynamic.model));
+        assert_eq!(opened.spacetime_set().unwrap(), scene.dynamic);
         for t in 0..6 {
             assert_eq!(opened.dynamic_set(t).unwrap(), scene.dynamic.at(t as f64));
         }

@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use eframe::egui::accesskit::Role;
 use eframe::{egui, egui_wgpu};
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
@@ -31,6 +32,10 @@ fn scene() -> Scene4d {
 fn open_viewer(dir: &Path) -> Harness<'static, ViewerApp> {
     let path = dir.join("scene.ply4d");
     ply4d::write(&path, &scene()).unwrap();
+    open_path(path)
+}
+
+fn open_path(path: PathBuf) -> Harness<'static, ViewerApp> {
     let egui_wgpu::WgpuSetup::CreateNew(setup) = egui_kittest::wgpu::default_wgpu_setup() else {
         panic!("egui_kittest's default set-up creates its own device");
     };
@@ -96,6 +101,73 @@ fn play_pause_and_loop_move_time_as_their_labels_say() {
         "no wrap without Loop: {once:?}"
     );
     harness.get_by_label("Play"); // stopped: the button offers Play again
+}
+
+#[test]
+fn a_version_2_scene_plays_between_its_timestamps_at_the_speed_set() {
+    let dir = TempDir::new("controls-v2");
+    let path = dir.0.join("scene.ply4d");
+    let scene = synthetic::spacetime_scene(20_000, 2_000, TIMES as u32, 1, 11);
+    ply4d::write_spacetime(&path, &scene).unwrap();
+    let mut harness = open_path(path);
+    // The speed control is reachable by its label; at half speed a 0.05 s step of the
+    // display moves a 10 fps scene by a quarter of a frame.
+    harness.get_by_label("speed ×").set_value_accesskit(0.5);
+    harness.step();
+    assert_eq!(harness.state().time().unwrap().speed, 0.5);
+    click(&mut harness, "Play");
+    let mut shown = Vec::new();
+    for _ in 0..20 {
+        harness.step();
+        let frame = harness.state().time().unwrap().frame();
+        // Every display frame draws the time it shows: evaluated there, not held.
+        assert_eq!(harness.state().drawn_frame(), Some(frame));
+        shown.push(frame);
+    }
+    let quarter = 0.05 * 0.5 * synthetic::FPS;
+    for pair in shown.windows(2) {
+        let moved = (pair[1] - pair[0]).rem_euclid(TIMES as f64);
+        assert!((moved - quarter).abs() < 1e-6, "{shown:?}");
+    }
+    assert!(
+        shown.iter().any(|f| f.fract() != 0.0),
+        "times between timestamps are shown: {shown:?}"
+    );
+    assert!(
+        shown.windows(2).any(|w| w[1] < w[0]),
+        "the time loops: {shown:?}"
+    );
+
+    // Paused between two timestamps, the view moves with the slider by a fraction of a
+    // frame; a step lands on the next timestamp.
+    click(&mut harness, "Pause");
+    let view = |harness: &mut Harness<'static, ViewerApp>| {
+        let window = harness.render().expect("the window renders on wgpu");
+        let rect = harness.state().view_rect();
+        image::imageops::crop_imm(
+            &window,
+            rect.min.x as u32,
+            rect.min.y as u32,
+            rect.width() as u32,
+            rect.height() as u32,
+        )
+        .to_image()
+    };
+    let at = |frame: f64, harness: &mut Harness<'static, ViewerApp>| {
+        harness
+            .get_by_role_and_label(Role::Slider, "time")
+            .set_value_accesskit(frame);
+        harness.run();
+        assert_eq!(harness.state().drawn_frame(), Some(frame));
+        view(harness)
+    };
+    let whole = at(1.0, &mut harness);
+    let between = at(1.5, &mut harness);
+    assert_ne!(whole, between, "half a frame later the ball has moved");
+    assert_eq!(harness.state().time_index(), Some(1));
+    harness.key_press(egui::Key::Period);
+    harness.run();
+    assert_eq!(harness.state().time().unwrap().frame(), 2.0);
 }
 
 /// sRGB (0..1) of a display value: what egui decodes the view's texels to before

@@ -19,7 +19,7 @@ use super::gaussians::{PyGaussianArrays, PySpacetimeArrays};
 use super::raster::{render_settings, slice, to_py, with_renderer, PyView};
 use crate::gaussians::SceneInput;
 use crate::raster::IntersectionCheck;
-use crate::spacetime::{SpacetimeSet, TimeInput};
+use crate::spacetime::{packed_parameters, SpacetimeSet, TimeInput};
 use crate::train::{
     AdamConfig, LossParts, LossWeights, Traffic, TrainConfig, TrainSession, TrainedInput,
     ViewTargets, GROUPS, OUTSIDE_SUMS,
@@ -463,11 +463,7 @@ impl TrainedArrays<'_> {
     /// The values in the session's layout (train::TrainState's).
     fn packed(&self) -> Vec<f32> {
         let (gaussians, time) = self.input();
-        let mut packed = gaussians.packed();
-        for section in time.iter().flat_map(|t| t.sections()) {
-            packed.extend_from_slice(section);
-        }
-        packed
+        packed_parameters(&gaussians, time)
     }
 }
 

@@ -1,7 +1,8 @@
 //! Gaussian sets on the GPU: the [`SceneBuffer`] every frame draws, the viewer's
 //! [`GpuScene`] kept between frames (the static set written once, each timestamp's
 //! dynamic set over the part after it) and [`StoredSet`]s copied into it, and the binding
-//! limit that bounds them.
+//! limit that bounds them. A version-2 scene's spacetime set is evaluated into a
+//! `GpuScene` on the GPU instead (crate::spacetime::GpuSpacetimeSet).
 
 use super::RasterError;
 use crate::gaussians::{SceneInput, BASE_FLOATS};
@@ -85,7 +86,10 @@ impl GpuScene {
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("gpu scene"),
             size: bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            // COPY_SRC: the tests read what a kernel wrote into it.
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
         Ok(Self {
@@ -156,6 +160,21 @@ impl GpuScene {
         queue.submit([encoder.finish()]);
         self.len = first as u32 + set.len;
         Ok(())
+    }
+
+    /// [`Self::write`] done by a kernel: makes Gaussians `first..first + n` (with `k` SH
+    /// coefficients per channel) the last ones drawn, after the same checks, and returns the
+    /// buffer a kernel writes them into (the spacetime evaluate pass), which must be
+    /// submitted before the next draw.
+    pub(crate) fn claim(
+        &mut self,
+        first: usize,
+        n: u32,
+        k: u32,
+    ) -> Result<SceneBuffer, RasterError> {
+        self.place(first, n, k)?;
+        self.len = first as u32 + n;
+        Ok(self.as_buffer())
     }
 
     /// (byte offset, bytes) of each SoA section of `n` Gaussians with `k` SH coefficients

@@ -1,9 +1,9 @@
 //! Adam on the device (`adam.wgsl`): torch.optim.Adam's update, element by element, with
 //! one learning rate per parameter group.
 
-use super::evaluate::TIME_LAYOUT_WGSL;
 use crate::raster::gpu::{compile, div_ceil, run_linear};
 use crate::raster::{COMMON_WGSL, GAUSSIAN_LAYOUT_WGSL};
+use crate::spacetime::evaluate::TIME_LAYOUT_WGSL;
 use crate::spacetime::MIN_WIDTH_FRAMES;
 use crate::wgsl::{gpu_struct, KernelModule, WgslPart};
 

@@ -8,14 +8,15 @@
 //!   complement), L_temporal and L_geo with their pixel gradient (`losses.wgsl`).
 //! - [`adam`]: torch's Adam with the lifting phase's per-group learning rates
 //!   (`adam.wgsl`).
-//! - [`evaluate`]: a trained spacetime set drawn at a step's view time and the adjoint of
-//!   that evaluation (`evaluate.wgsl`, `time_layout.wgsl`).
+//!
+//! A spacetime set is drawn at a step's view time, and its gradient carried back to its time
+//! parameters, by the evaluate pass and its adjoint, which live beside the CPU form in
+//! [`crate::spacetime`] (the viewer launches the same pass).
 //!
 //! The torch trainer (`pano4d.lift.torch_trainer.GaussianTrainer`) is the reference; the
 //! Python tests compare the two step for step.
 
 pub mod adam;
-pub mod evaluate;
 pub mod losses;
 pub mod session;
 #[cfg(test)]
@@ -29,5 +30,5 @@ pub use session::{Traffic, TrainConfig, TrainSession, TrainState, TrainedInput, 
 /// structs).
 #[cfg(test)]
 pub(crate) fn kernel_modules() -> Vec<crate::wgsl::KernelModule> {
-    vec![losses::module(), adam::module(), evaluate::module()]
+    vec![losses::module(), adam::module()]
 }

@@ -15,8 +15,8 @@
 //! the scene's gradient as the parameters'. A spacetime set (crate::spacetime: a trained
 //! set with time parameters, its time sections after the Gaussians') is drawn at the time of
 //! the step's view by a compute pass, whose adjoint writes the time parameters' gradient
-//! (evaluate.rs); every parameter of its Gaussians still takes the snapshot's gradient as
-//! its own.
+//! (spacetime/evaluate.rs, whose pass the viewer also runs); every parameter of its
+//! Gaussians still takes the snapshot's gradient as its own.
 //!
 //! Device memory per trained Gaussian, in floats, with K SH coefficients per channel and T
 //! time parameters (2 + 6·(colour + position harmonics): 20 at the default 2 and 1; 0 for a
@@ -35,7 +35,6 @@
 //! [`Traffic`] counts every byte the session moves between host and device.
 
 use super::adam::{AdamBindings, AdamConfig, AdamKernel, AdamLayout, AdamParams};
-use super::evaluate::{EvaluateKernels, TimeLayout, TimeParams};
 use super::losses::{
     LossBuffers, LossKernels, LossParams, LossParts, LossWeights, ViewBuffers, LOSS_PARTS,
     OUTSIDE_SUMS,
@@ -47,7 +46,8 @@ use crate::raster::{
     binding_limit, Frame, GpuScene, IntersectionCheck, RasterError, RenderSettings, Renderer,
     SceneBuffer, PIXEL_CHANNELS,
 };
-use crate::spacetime::{TimeInput, TimeModel};
+use crate::spacetime::evaluate::{EvaluateKernels, TimeLayout, TimeParams};
+use crate::spacetime::{packed_parameters, TimeInput, TimeModel};
 
 /// One view's targets: its camera, rgb (h·w·3), loss weight (h·w), Θ's z-depth (h·w, for
 /// L_geo) and the previous timestamp's render (h·w·3, for L_temporal). The camera may be a
@@ -605,10 +605,7 @@ impl TrainSession {
             }
             buffer
         };
-        let mut packed = t.gaussians.packed();
-        for section in t.time.iter().flat_map(|time| time.sections()) {
-            packed.extend_from_slice(section);
-        }
+        let packed = packed_parameters(&t.gaussians, t.time);
         let params = fresh("trained parameters", floats, Some(&packed), self);
         let unit = fresh("unit", nn, Some(t.unit), self);
         let exp_avg = fresh("exp_avg", floats, t.exp_avg, self);

@@ -6,8 +6,8 @@
 use super::{GpuStruct, KernelModule, StructLayout};
 use crate::raster::params::{Projected, RenderParams};
 use crate::raster::sort::{DispatchPlan, SortPass};
+use crate::spacetime::evaluate::TimeParams;
 use crate::train::adam::AdamParams;
-use crate::train::evaluate::TimeParams;
 use crate::train::losses::LossParams;
 
 /// The Rust side of every shared struct.
@@ -26,6 +26,7 @@ fn rust_structs() -> Vec<StructLayout> {
 fn kernel_modules() -> Vec<KernelModule> {
     let mut modules = crate::raster::kernel_modules();
     modules.extend(crate::train::kernel_modules());
+    modules.extend(crate::spacetime::kernel_modules());
     modules
 }
 

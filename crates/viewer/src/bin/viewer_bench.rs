@@ -9,15 +9,24 @@
 //! - *upload*: the still frame through `Renderer::forward` (whole set uploaded, float
 //!   image read back: the training path);
 //! - a time change alone, the GPU waited for: the GPU-side copy of a stored set, and the
-//!   decode and the upload of a set that streaming does instead.
+//!   decode and the upload of a set that streaming does instead;
+//! - *version 2*: the same Gaussians as a version-2 scene (its dynamic part one spacetime
+//!   set looping over the T timestamps), played as the window plays it, with interpolation:
+//!   the shown time advanced by one display frame (1/60 s at the scene's 10 fps: 1/6 of a
+//!   frame, so it falls between timestamps), the set evaluated there on the GPU and drawn
+//!   (*playing*), against *still* (the same pose drawn again, no evaluation), interleaved
+//!   frame by frame as above; and the evaluate pass alone, the GPU waited for. Issue #38's
+//!   target: playing ≤ 1.1 × still on lavapipe.
 //!
-//! Prints a table and writes JSON.
+//! Prints a table and writes JSON (`cases`, each with its `version_2` figures).
 //!
 //! `cargo run --release -p pano4d-viewer --bin viewer-bench -- [--quick] [--json PATH]
 //!  [--size WxH] [--sh-degree D] [--counts N,N,...] [--frames F] [--times T]
-//!  [--budget-mib M]`; `viewer-bench --adapter` prints the adapter it would use.
+//!  [--budget-mib M]`; `viewer-bench --adapter` prints the adapter it would use. The
+//! version-2 comparison of issue #38 on lavapipe: `viewer-bench --counts 50000 --frames 21`
+//! (its `v2 ratio` column; `version_2.playing_over_still` in the JSON).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -27,13 +36,40 @@ use pano4d_viewer::residency;
 use pano4d_viewer::scene::Scene;
 use pano4d_viewer::stream::DynamicStream;
 use pano4d_viewer::synthetic;
+use pano4d_viewer::time::{TimeControl, Timeline};
 use serde::Serialize;
+use splat_core::camera::Camera;
 use splat_core::gaussians::SceneInput;
 use splat_core::ply4d;
 use splat_core::raster::{GpuContext, RenderSettings, Renderer};
 
 /// Share of the Gaussians that are dynamic (per timestamp).
 const DYNAMIC_FRACTION: f64 = 0.05;
+/// The display's refresh rate the version-2 playback advances the time by, per frame.
+const DISPLAY_HZ: f64 = 60.0;
+
+/// A version-2 scene of the case's Gaussians, played with interpolation.
+#[derive(Serialize)]
+struct Interpolated {
+    /// Frames of the scene's loop (its period).
+    period: usize,
+    /// Scene frames one display frame advances the shown time by.
+    frames_per_display_frame: f64,
+    /// Bytes of the spacetime set on the GPU.
+    spacetime_bytes: u64,
+    /// Loading the scene and showing time 0: static set and spacetime set uploaded, one
+    /// evaluation.
+    load_ms: f64,
+    still_ms_median: f64,
+    still_ms_min: f64,
+    /// The evaluate pass at the next display frame's time, then the draw.
+    playing_ms_median: f64,
+    playing_ms_min: f64,
+    /// Median over frames of playing / still at the same pose.
+    playing_over_still: f64,
+    /// The evaluate pass alone, the GPU waited for.
+    evaluate_ms_median: f64,
+}
 
 #[derive(Serialize)]
 struct Case {
@@ -65,6 +101,7 @@ struct Case {
     upload_set_ms_median: f64,
     streamed_ms_median: f64,
     upload_ms_median: f64,
+    version_2: Interpolated,
 }
 
 #[derive(Serialize)]
@@ -174,7 +211,7 @@ fn run_case(
     let mut playback = None;
     let load_ms = timed(|| {
         playback = Some(resident.load_scene_resident(&scene, options.budget).clone());
-        resident.show_time(&scene, 0)
+        resident.show_time(&scene, 0.0)
     })?;
     let playback = playback.expect("set by the load");
     streamed.load_scene(&scene);
@@ -182,19 +219,9 @@ fn run_case(
     // Frames are drawn into a texture, as in the window (no read-back).
     let target = resident.create_target(width, height);
     let streamed_target = streamed.create_target(width, height);
-    let start_pose = ViewCamera::panorama_viewpoint(&scene.extent);
-    let poses: Vec<_> = (0..options.frames)
-        .scan(start_pose, |camera, _| {
-            camera.drag(15.0, 0.0);
-            Some(camera.to_camera(width, height))
-        })
-        .collect();
+    let (start, poses) = poses(&scene, options);
     // Warm-up: pipelines, buffer growth.
-    resident.draw(
-        &start_pose.to_camera(width, height),
-        &frame_options,
-        &target,
-    )?;
+    resident.draw(&start, &frame_options, &target)?;
 
     // Playing and still, interleaved at the same poses: playing shows the next timestamp
     // and draws; still draws the same pose again at that timestamp.
@@ -202,7 +229,7 @@ fn run_case(
     for (frame, camera) in poses.iter().enumerate() {
         let t = (frame + 1) % times;
         let play = timed(|| {
-            resident.show_time(&scene, t)?;
+            resident.show_time(&scene, t as f64)?;
             resident.draw(camera, &frame_options, &target)
         })?;
         let draw = timed(|| resident.draw(camera, &frame_options, &target))?;
@@ -214,11 +241,11 @@ fn run_case(
     // A time change by itself, the GPU waited for: the GPU-side copy of a stored set (the
     // resident path), and the decode and the upload of a set (the streamed path).
     let (mut copy, mut decode, mut upload_set) = (Vec::new(), Vec::new(), Vec::new());
-    streamed.show_time(&scene, 0)?;
+    streamed.show_time(&scene, 0.0)?;
     for frame in 0..options.frames {
         let t = (frame + 1) % times;
         copy.push(timed(|| {
-            resident.show_time(&scene, t)?;
+            resident.show_time(&scene, t as f64)?;
             resident.wait()
         })?);
         let mut set = None;
@@ -236,7 +263,7 @@ fn run_case(
     // Streaming as the window does it when the sets do not fit: the next timestamp
     // decodes while this one draws.
     let mut stream = DynamicStream::new(Arc::clone(&scene));
-    streamed.show_time(&scene, 0)?;
+    streamed.show_time(&scene, 0.0)?;
     streamed.draw(&poses[0], &frame_options, &streamed_target)?;
     stream.prefetch(1);
     let mut streaming = Vec::new();
@@ -268,6 +295,7 @@ fn run_case(
     drop(whole);
     drop(scene);
     std::fs::remove_file(&path).map_err(|e| e.to_string())?;
+    let version_2 = run_version_2(resident, statics, dynamic, options, &dir)?;
     let _ = std::fs::remove_dir(&dir);
     Ok(Case {
         gaussians: count,
@@ -280,7 +308,8 @@ fn run_case(
         frames: options.frames,
         resident_bytes: match &playback {
             residency::Playback::Resident { bytes } => *bytes,
-            residency::Playback::Streamed { .. } => 0,
+            // A version-1 scene is never evaluated.
+            residency::Playback::Streamed { .. } | residency::Playback::Evaluated { .. } => 0,
         },
         playback: playback.describe(),
         load_ms,
@@ -294,6 +323,98 @@ fn run_case(
         upload_set_ms_median: median(&mut upload_set),
         streamed_ms_median: median(&mut streaming),
         upload_ms_median: median(&mut upload),
+        version_2,
+    })
+}
+
+/// The camera the frames start from, and one pose per frame turning right from it.
+fn poses(scene: &Scene, options: &Options) -> (Camera, Vec<Camera>) {
+    let (width, height) = (options.width, options.height);
+    let start = ViewCamera::panorama_viewpoint(&scene.extent);
+    let poses = (0..options.frames)
+        .scan(start, |camera, _| {
+            camera.drag(15.0, 0.0);
+            Some(camera.to_camera(width, height))
+        })
+        .collect();
+    (start.to_camera(width, height), poses)
+}
+
+/// The case's Gaussians as a version-2 scene (`statics` static, `dynamic` in the spacetime
+/// set, looping over `options.times` frames), played with interpolation on `renderer` as
+/// the window plays it, against still frames at the same poses.
+fn run_version_2(
+    renderer: &mut FrameRenderer,
+    statics: usize,
+    dynamic: usize,
+    options: &Options,
+    dir: &Path,
+) -> Result<Interpolated, String> {
+    let generated = synthetic::spacetime_scene(
+        statics,
+        dynamic,
+        options.times as u32,
+        options.sh_degree,
+        42,
+    );
+    let path = dir.join(format!("scene-{}-v2.ply4d", statics + dynamic));
+    ply4d::write_spacetime(&path, &generated).map_err(|e| e.to_string())?;
+    drop(generated);
+    let scene = Scene::open(&path)?;
+    let mut time = TimeControl::new(&scene.timestamps, Timeline::Continuous);
+    let mut playback = None;
+    let load_ms = timed(|| {
+        playback = Some(renderer.load_scene_resident(&scene, options.budget).clone());
+        renderer.show_time(&scene, time.frame())
+    })?;
+    let spacetime_bytes = match playback {
+        Some(residency::Playback::Evaluated { bytes }) => bytes,
+        other => return Err(format!("the version-2 scene was loaded as {other:?}")),
+    };
+    let frame_options = FrameOptions::default();
+    let target = renderer.create_target(options.width, options.height);
+    let (start, poses) = poses(&scene, options);
+    // Warm-up: pipelines, buffer growth.
+    renderer.draw(&start, &frame_options, &target)?;
+
+    // Playing and still, interleaved at the same poses: playing advances the time by one
+    // display frame, evaluates the set there and draws; still draws the same pose again.
+    time.toggle_play();
+    let (mut still, mut playing, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+    for camera in &poses {
+        time.advance(1.0 / DISPLAY_HZ);
+        let play = timed(|| {
+            renderer.show_time(&scene, time.frame())?;
+            renderer.draw(camera, &frame_options, &target)
+        })?;
+        let draw = timed(|| renderer.draw(camera, &frame_options, &target))?;
+        playing.push(play);
+        still.push(draw);
+        ratios.push(play / draw);
+    }
+    // The evaluate pass by itself, the GPU waited for.
+    let mut evaluate = Vec::new();
+    for _ in 0..options.frames {
+        time.advance(1.0 / DISPLAY_HZ);
+        evaluate.push(timed(|| {
+            renderer.show_time(&scene, time.frame())?;
+            renderer.wait()
+        })?);
+    }
+    let period = scene.num_times();
+    drop(scene);
+    std::fs::remove_file(&path).map_err(|e| e.to_string())?;
+    Ok(Interpolated {
+        period,
+        frames_per_display_frame: synthetic::FPS / DISPLAY_HZ,
+        spacetime_bytes,
+        load_ms,
+        still_ms_min: min(&still),
+        still_ms_median: median(&mut still),
+        playing_ms_min: min(&playing),
+        playing_ms_median: median(&mut playing),
+        playing_over_still: median(&mut ratios),
+        evaluate_ms_median: median(&mut evaluate),
     })
 }
 
@@ -362,6 +483,18 @@ fn run() -> Result<(), String> {
             case.decode_ms_median,
             case.upload_set_ms_median,
             case.playback
+        );
+        let v2 = &case.version_2;
+        println!(
+            "{:>10} version 2, interpolated ({:.3} frame a display frame): still {:.1} ms | \
+             playing {:.1} ms | v2 ratio {:.3}x | evaluate alone {:.2} ms | load {:.0} ms",
+            "",
+            v2.frames_per_display_frame,
+            v2.still_ms_median,
+            v2.playing_ms_median,
+            v2.playing_over_still,
+            v2.evaluate_ms_median,
+            v2.load_ms
         );
         cases.push(case);
     }

@@ -1,10 +1,11 @@
-// The evaluate pass of a trained spacetime set and its adjoint (train/evaluate.rs launches
-// both; time_layout.wgsl holds the functions of time they share with Adam).
+// The evaluate pass of a spacetime set and its adjoint (spacetime/evaluate.rs holds the
+// Rust side; a training session launches both, the viewer's GpuSpacetimeSet `evaluate`
+// alone; time_layout.wgsl holds the functions of time they share with Adam).
 //
-// `evaluate` draws the set at the step's view time: it writes the snapshot the rasteriser
-// reads (scene Gaussian n_static + i, sections `scene_len` long) from the parameters
-// (sections `n_train` long, the time sections after the Gaussians'), as
-// SpacetimeGaussians.at does in torch:
+// `evaluate` draws the set at the uniform's time (a step's view time, or the time the viewer
+// shows): it writes the snapshot the rasteriser reads (scene Gaussian n_static + i,
+// sections `scene_len` long) from the parameters (sections `n_train` long, the time
+// sections after the Gaussians'), as SpacetimeGaussians.at does in torch:
 //
 //   mean(t)  = mean + Σⱼ position_basisⱼ · position_termsⱼ
 //   dc(t)    = dc + Σⱼ colour_basisⱼ · colour_termsⱼ

@@ -1,12 +1,15 @@
-//! A trained spacetime set on the device: the evaluate pass that draws it at a step's view
-//! time and its adjoint, which carries the gradient of what was drawn to the time
-//! parameters (`evaluate.wgsl`; the functions of time they share with Adam are in
-//! `time_layout.wgsl`). The reference is `pano4d.spacetime.SpacetimeGaussians.at`, with
-//! torch's autograd for the adjoint.
+//! A spacetime set on the device: the evaluate pass that draws it at a time into the scene
+//! the rasteriser reads, and its adjoint, which carries the gradient of what was drawn to
+//! the time parameters (`evaluate.wgsl`; the functions of time they share with the
+//! trainer's Adam are in `time_layout.wgsl`). Two launch the evaluate pass: the training
+//! session (crate::train::session, at each step's view time, with the adjoint) and
+//! [`super::GpuSpacetimeSet`] (the viewer's version-2 playback, at the shown time). The
+//! reference is `pano4d.spacetime.SpacetimeGaussians.at`, with torch's autograd for the
+//! adjoint; [`super::SpacetimeSet::at`] is its CPU form.
 
+use super::{TimeModel, MAX_HARMONICS};
 use crate::raster::gpu::{compile, div_ceil, run_linear};
 use crate::raster::{COMMON_WGSL, GAUSSIAN_LAYOUT_WGSL};
-use crate::spacetime::{TimeModel, MAX_HARMONICS};
 use crate::wgsl::{gpu_struct, KernelModule, WgslPart};
 
 /// The functions of time at the step's time, for the kernels that bind `params` and `tp`.
@@ -63,9 +66,10 @@ gpu_struct! {
     }
 }
 
-/// Where the trained set and its gradient lie when the passes run.
+/// Where the evaluated set (the trained one, in a session) and its gradient lie when the
+/// passes run.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct TimeLayout {
+pub(crate) struct TimeLayout {
     pub n_static: u32,
     pub n_train: u32,
     /// The scene's section length (its capacity).
@@ -77,7 +81,7 @@ pub(super) struct TimeLayout {
 impl TimeParams {
     /// The uniform for drawing a set of `model` at `time` (frames): the bases in f64 as the
     /// torch form computes them, the time in f32 as its distance arithmetic takes it.
-    pub(super) fn new(model: &TimeModel, time: f64, layout: TimeLayout) -> Self {
+    pub(crate) fn new(model: &TimeModel, time: f64, layout: TimeLayout) -> Self {
         let basis = |harmonics: u32| {
             let mut out = [[0.0f32; 4]; BASIS_VALUES / 4];
             for (to, value) in out
@@ -108,13 +112,13 @@ impl TimeParams {
     }
 }
 
-pub(super) struct EvaluateKernels {
+pub(crate) struct EvaluateKernels {
     evaluate: wgpu::ComputePipeline,
     adjoint: wgpu::ComputePipeline,
 }
 
 impl EvaluateKernels {
-    pub(super) fn new(device: &wgpu::Device) -> Self {
+    pub(crate) fn new(device: &wgpu::Device) -> Self {
         let mut pipelines = compile(device, &module(), &["evaluate", "adjoint"]).into_iter();
         Self {
             evaluate: pipelines.next().expect("evaluate"),
@@ -123,7 +127,7 @@ impl EvaluateKernels {
     }
 
     /// Encodes the snapshot of `n_train` Gaussians at the uniform's time into `scene`.
-    pub(super) fn encode_evaluate(
+    pub(crate) fn encode_evaluate(
         &self,
         device: &wgpu::Device,
         pass: &mut wgpu::ComputePass<'_>,
@@ -144,7 +148,7 @@ impl EvaluateKernels {
     /// Encodes the time parameters' gradient of `n_train` Gaussians from the scene's
     /// gradient (`grads`, plus `grads_extra` where the uniform says so) into `time_grads`.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn encode_adjoint(
+    pub(crate) fn encode_adjoint(
         &self,
         device: &wgpu::Device,
         pass: &mut wgpu::ComputePass<'_>,

@@ -1,11 +1,13 @@
-// A trained spacetime set's functions of time at the step's view time (crate::spacetime;
-// the reference is pano4d.spacetime's SpacetimeGaussians.at): where its time parameters lie
+// A spacetime set's functions of time at the uniform's time (crate::spacetime; the
+// reference is pano4d.spacetime's SpacetimeGaussians.at): where its time parameters lie
 // and what they give at that time. Shared by the evaluate pass and its adjoint
-// (evaluate.wgsl) and by Adam (adam.wgsl, for the position the step drew a Gaussian at),
-// each of which binds the trained parameters as `params` and this uniform as `tp`.
+// (evaluate.wgsl) and by the trainer's Adam (train/adam.wgsl, for the position the step
+// drew a Gaussian at), each of which binds the set's parameters as `params` and this
+// uniform as `tp`. "Trained" below names the evaluated set, as in a training session; the
+// viewer's GpuSpacetimeSet fills the same fields for the set it plays.
 
-// Rust: train/evaluate.rs's `TimeParams` (the one declaration; the wgsl tests check this
-// one against it).
+// Rust: spacetime/evaluate.rs's `TimeParams` (the one declaration; the wgsl tests check
+// this one against it).
 struct TimeParams {
     // The frozen static set's and the trained set's counts: the snapshot of trained
     // Gaussian i is scene Gaussian n_static + i.
