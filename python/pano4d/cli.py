@@ -214,11 +214,15 @@ def evaluate(
 @app.command()
 def export(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
-    out: Annotated[
-        Path, typer.Argument(help="The file to write (with --sequence: a new folder).")
-    ],
+    out: Annotated[Path, typer.Argument(help="The file to write (with --sequence: a new folder).")],
     time: Annotated[
-        int | None, typer.Option("--time", "-t", help="Timestamp index (default 0).")
+        float | None,
+        typer.Option(
+            "--time",
+            "-t",
+            help="Scene time in frames, any real ≥ 0, looping (default 0): a version-2 scene "
+            "evaluated there, a version-1 one at the timestamp it holds.",
+        ),
     ] = None,
     fmt: Annotated[
         str | None,
@@ -232,8 +236,9 @@ def export(
         typer.Option(help="Every timestamp, as OUT/frame_0000.<ext>… (SuperSplat's timeline)."),
     ] = False,
 ) -> None:
-    """Write a timestamp (static + dynamic Gaussians), or every one, as splats other tools
-    open: plain 3DGS .ply, SuperSplat .compressed.ply, SPZ, SOG (.sog) or .splat."""
+    """Write the scene at one time (static + dynamic Gaussians), or every timestamp, as
+    splats other tools open: plain 3DGS .ply, SuperSplat .compressed.ply, SPZ, SOG (.sog) or
+    .splat."""
     from pano4d import ply4d, share_formats
     from pano4d.progress import Bars
 
@@ -241,7 +246,7 @@ def export(
     with Bars(enabled=sequence, transient=True, console=console) as bars:
         times = bars.task("exporting", num_times)
         written = share_formats.export(scene, out, fmt, time, sequence, times.advance)
-    what = f"{len(written)} timestamps" if sequence else f"time index {time or 0}"
+    what = f"{len(written)} timestamps" if sequence else f"time {time or 0:g}"
     console.print(f"wrote {out} ({what})")
 
 
@@ -318,7 +323,14 @@ def render_command(
             "'copy pose') or {K, world_to_cam, width, height}. Default: the panorama's viewpoint."
         ),
     ] = None,
-    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index (.ply4d).")] = 0,
+    time: Annotated[
+        float,
+        typer.Option(
+            "--time",
+            "-t",
+            help="Scene time of a still in frames, any real ≥ 0, looping (.ply4d; a .ply: 0).",
+        ),
+    ] = 0.0,
     width: Annotated[
         int | None,
         typer.Option(help="Image width (default 1280; 4096 with --projection equirect)."),
