@@ -134,6 +134,8 @@ CASES: list[Case] = [
      ["junk.ply4d", "truncated .ply4d"]),
     ("render-time", nothing, ["render", "{s}/output/scene.ply4d", "-o", "{s}/out.png", "-t", "nan"],
      ["time nan", "frames ≥ 0"]),
+    ("web-rate", nothing, ["web", "{s}/output/scene.ply4d", "{s}/site", "--rate", "0"],
+     ["--rate 0", "must be a positive number"]),
     ("render-camera", nothing,
      ["render", "{s}/output/scene.ply4d", "-o", "{s}/out.png", "--camera",
       '{"position": [0, 0], "forward": [1, 0, 0]}'],

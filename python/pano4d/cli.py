@@ -250,6 +250,15 @@ def export(
     console.print(f"wrote {out} ({what})")
 
 
+Rate = Annotated[
+    float | None,
+    typer.Option(
+        help="Samples a second of scene time (default: the scene's own fps): a version-2 "
+        "scene is sent evaluated at each; a version-1 one sends each timestamp shown once."
+    ),
+]
+
+
 @app.command()
 def serve(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
@@ -257,17 +266,19 @@ def serve(
     host: Annotated[
         str, typer.Option(help="Address to listen on (0.0.0.0: every interface).")
     ] = "127.0.0.1",
+    rate: Rate = None,
 ) -> None:
     """A live 4D viewer in the browser (viser): time slider, play / pause, camera presets."""
     import time as clock
 
     from pano4d import web
-    from pano4d.ply4d import open as open_scene
     from pano4d.progress import Bars
 
+    scene_file = web.open_checked(scene)
+    plan = web.playback(scene_file, rate)
     with Bars(transient=True, console=console) as bars:
-        sets = bars.task("sending the scene", open_scene(scene).num_times + 1)
-        server, _ = web.start_server(scene, host, port, on_set=sets.advance)
+        sets = bars.task("sending the scene", len(plan.set_times) + 1)
+        server, _ = web.start_server(scene_file, plan, host, port, on_set=sets.advance)
     port = server.get_port()
     console.print(f"[green]serve:[/] {scene} at http://{host}:{port} (Ctrl+C stops)")
     console.print(web.forwarding_hint(host, port))
@@ -282,15 +293,17 @@ def serve(
 def web(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
     out: Annotated[Path, typer.Argument(help="The folder to write (new or empty).")],
+    rate: Rate = None,
 ) -> None:
     """The scene as a static web page folder (viser's client + a recording): OUT/index.html."""
     from pano4d import web as web_mod
-    from pano4d.ply4d import open as open_scene
     from pano4d.progress import Bars
 
+    scene_file = web_mod.open_checked(scene)
+    plan = web_mod.playback(scene_file, rate)
     with Bars(transient=True, console=console) as bars:
-        sets = bars.task("recording the scene", open_scene(scene).num_times + 1)
-        web_mod.write_web(scene, out, on_set=sets.advance)
+        sets = bars.task("recording the scene", len(plan.set_times) + 1)
+        web_mod.write_web(scene_file, plan, out, on_set=sets.advance)
     console.print(
         f"wrote {out}: serve the folder with any file server "
         f"(python -m http.server -d {out}) and open index.html"
