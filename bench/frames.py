@@ -217,7 +217,7 @@ def region_quality(kind: str, seed: int, frames: int, scene: Any) -> dict[str, A
     version-1 scene shows t there, a spacetime one its functions at t + 0.5); and over the
     loop, the moving pixels' temporal error, mean |(R₍t+1₎ − R₍t₎) − (G₍t+1₎ − G₍t₎)|, and
     flicker, mean |R₍t+1₎ − R₍t₎|, beside the ground truth's own, mean |G₍t+1₎ − G₍t₎|.
-    ``scene``: a ``ply4d.Scene4D`` (``scene_at``)."""
+    ``scene``: a ``ply4d.Scene4D``, read at any real time (``Scene4D.at``)."""
     from pano4d.camera import Camera
     from pano4d.metrics import psnr
     from pano4d.renderer import render
@@ -244,7 +244,7 @@ def region_quality(kind: str, seed: int, frames: int, scene: Any) -> dict[str, A
     def pair(t: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """(render, truth) per camera at time t."""
         with torch.no_grad():
-            g = scene_at(scene, t)
+            g = scene.at(t)
             return [
                 (render(g, cam, antialiased=scene.antialiased).rgb.clamp(0, 1).cpu(),
                  render_view(world, cam, t)[0])
@@ -277,17 +277,6 @@ def region_quality(kind: str, seed: int, frames: int, scene: Any) -> dict[str, A
         "flicker": float(np.mean(flicker)) if flicker else math.nan,
         "truth_flicker": float(np.mean(truth_flicker)) if truth_flicker else math.nan,
     }
-
-
-def scene_at(scene: Any, t: float) -> Any:
-    """The Gaussians of ``scene`` (a ply4d.Scene4D) at real time ``t`` in frames: a spacetime
-    set evaluated there, one set per timestamp held until the next."""
-    from pano4d.gaussians import Gaussians
-    from pano4d.spacetime import SpacetimeGaussians
-
-    if isinstance(scene.dynamic, SpacetimeGaussians):
-        return Gaussians.cat([scene.static, scene.dynamic.at(t)])
-    return scene.at(math.floor(t) % scene.num_times)
 
 
 def dynamic_bytes(path: Path) -> int:

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+import torch
 from typer.testing import CliRunner
 
+from pano4d import ply4d
 from pano4d.cli import app
+from pano4d.gaussians import Gaussians
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
 
 runner = CliRunner()
 
@@ -47,11 +52,6 @@ def test_synth_rejects_a_non_2_to_1_size(tmp_path: Path) -> None:
 
 
 def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None:
-    import torch
-
-    from pano4d import ply4d
-    from pano4d.gaussians import Gaussians
-
     def gs(n: int, offset: float) -> Gaussians:
         return Gaussians(
             torch.rand(n, 3) + offset,
@@ -68,20 +68,18 @@ def test_export_writes_a_plain_ply_and_reports_bad_input(tmp_path: Path) -> None
     result = runner.invoke(app, ["export", str(path), str(out), "--time", "1"])
     assert result.exit_code == 0, result.output
     assert len(ply4d.read_ply(out)) == 7
-    bad = runner.invoke(app, ["export", str(path), str(out), "--time", "5"])
+    later = runner.invoke(app, ["export", str(path), str(out), "--time", "5.5"])
+    assert later.exit_code == 0 and "(time 5.5)" in later.output, later.output
+    assert len(ply4d.read_ply(out)) == 7  # 5.5 mod 2 = 1.5: timestamp 1, held
+    bad = runner.invoke(app, ["export", str(path), str(out), "--time", "-1"])
     assert bad.exit_code == 2 and "error" in bad.output
     (tmp_path / "junk.ply4d").write_bytes(b"not a scene")
     junk = runner.invoke(app, ["export", str(tmp_path / "junk.ply4d"), str(out)])
     assert junk.exit_code == 2 and "junk.ply4d" in junk.output
 
 
-def test_export_of_a_version_2_scene_is_its_set_at_the_time(tmp_path: Path) -> None:
-    import torch
-
-    from pano4d import ply4d
-    from pano4d.gaussians import Gaussians
-    from pano4d.spacetime import SpacetimeGaussians, TimeModel
-
+def tiny_spacetime_scene(path: Path) -> ply4d.Scene4D:
+    """A version-2 scene of 2 static and 5 moving Gaussians looping over 3 frames."""
     canonical = Gaussians(
         torch.rand(5, 3), torch.zeros(5, 3), torch.tensor([[1.0, 0, 0, 0]] * 5),
         torch.zeros(5), torch.zeros(5, 1, 3),
@@ -90,17 +88,42 @@ def test_export_of_a_version_2_scene_is_its_set_at_the_time(tmp_path: Path) -> N
     moving.position_terms.uniform_(-1, 1)
     moving.colour_terms.uniform_(-1, 1)
     scene = ply4d.Scene4D(canonical[:2], moving, [0.0, 0.5, 1.0], 2.0)
-    path = tmp_path / "scene.ply4d"
     ply4d.write(path, scene)
-    out = tmp_path / "t1.ply"
-    result = runner.invoke(app, ["export", str(path), str(out), "--time", "1"])
-    assert result.exit_code == 0, result.output
-    exported, expected = ply4d.read_ply(out), scene.at(1)
-    assert len(exported) == 7
-    for name, tensor in expected.tensors().items():
-        assert torch.equal(exported.tensors()[name], tensor), name
-    bad = runner.invoke(app, ["export", str(path), str(out), "--time", "3"])
-    assert bad.exit_code == 2 and "out of range" in bad.output
+    return scene
+
+
+def test_export_of_a_version_2_scene_is_its_set_at_the_time(tmp_path: Path) -> None:
+    """At a timestamp and between two: the spacetime set evaluated at that real time."""
+    path = tmp_path / "scene.ply4d"
+    scene = tiny_spacetime_scene(path)
+    for time in ("1", "2.5"):
+        out = tmp_path / f"t{time}.ply"
+        result = runner.invoke(app, ["export", str(path), str(out), "--time", time])
+        assert result.exit_code == 0, result.output
+        assert f"(time {time})" in result.output
+        exported, expected = ply4d.read_ply(out), scene.at(float(time))
+        assert len(exported) == 7
+        for name, tensor in expected.tensors().items():
+            assert torch.equal(exported.tensors()[name], tensor), name
+    between = ply4d.read_ply(tmp_path / "t2.5.ply")
+    assert not torch.equal(between.means, scene.at(2).means)
+    assert not torch.equal(between.means, scene.at(0).means)  # frame 3 is frame 0
+
+
+@pytest.mark.parametrize("time", ["nan", "-1", "inf", "-inf"])
+@pytest.mark.parametrize("command", ["export", "render"])
+def test_a_time_that_is_not_one_is_one_error_line(tmp_path: Path, command: str, time: str) -> None:
+    path = tmp_path / "scene.ply4d"
+    tiny_spacetime_scene(path)
+    out = tmp_path / ("out.ply" if command == "export" else "out.png")
+    args = [str(path), str(out)] if command == "export" else [str(path), "--out", str(out)]
+    result = runner.invoke(app, [command, *args, "--time", time])
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: time {time}"), lines
+    assert "frames ≥ 0" in lines[0]
+    assert not out.exists()
 
 
 def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
@@ -116,9 +139,7 @@ def test_synth_animate_eval_end_to_end(tmp_path: Path) -> None:
     for name in ("panorama.png", "depth.exr", "mask.png", "scene.yaml", "gt/views.json"):
         assert (out / name).exists(), name
     whole = tmp_path / "whole"
-    result = runner.invoke(
-        app, ["animate", str(out / "scene.yaml"), "--frames-out", str(whole)]
-    )
+    result = runner.invoke(app, ["animate", str(out / "scene.yaml"), "--frames-out", str(whole)])
     assert result.exit_code == 0, result.output
     # The frame store: the static panorama once and each frame's moving box.
     crops = sorted((out / "output" / "animate" / "moving").glob("0*.png"))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -187,7 +188,7 @@ def test_ply4d_empty_scene(tmp_path: Path) -> None:
     assert back.provenance["tool_version"] == "0.1.0"
     f = ply4d.open(path)
     assert f.header["bounds"] is None
-    with pytest.raises(IndexError, match="out of range"):
+    with pytest.raises(ply4d.TimeError, match="no timestamps"):
         f.at(0)
 
 
@@ -210,7 +211,7 @@ def test_ply4d_lazy_open(tmp_path: Path) -> None:
     assert_bit_equal(f.static(), scene.static)
     assert_bit_equal(f.dynamic(1), scene.dynamic[1])
     assert_bit_equal(f.at(0), scene.at(0))
-    with pytest.raises(IndexError):
+    with pytest.raises(ply4d.TimeError):
         f.dynamic(-1)
 
 
@@ -347,9 +348,8 @@ def test_ply4d_version_2_round_trip_bit_exact(tmp_path: Path, degree: int) -> No
         assert_bit_equal(back.at(t), scene.at(t))
         assert_bit_equal(f.at(t), scene.at(t))
         assert_bit_equal(f.dynamic(t), scene.dynamic.at(t))
-    with pytest.raises(ply4d.TimeIndexError, match="out of range"):
-        f.at(MODEL.period)
-    with pytest.raises(ply4d.TimeIndexError):
+    assert_bit_equal(f.at(MODEL.period), scene.at(0))  # the loop's end is its start
+    with pytest.raises(ply4d.TimeError, match="≥ 0"):
         back.at(-1)
     assert os.listdir(tmp_path) == ["scene.ply4d"]
 
@@ -436,6 +436,90 @@ def test_version_2_scenes_and_files_refuse_what_they_cannot_be(tmp_path: Path) -
     assert f.version == 1
     with pytest.raises(ply4d.FormatError, match="stores one dynamic set per timestamp"):
         f.spacetime()
+
+
+# --- time: any real t ≥ 0, taken modulo the loop --------------------------------------
+
+
+def test_a_version_2_scene_is_evaluated_at_any_real_time(tmp_path: Path) -> None:
+    """Between its frames a spacetime set moves on (at 2.5 it is neither frame 2 nor 3), and
+    a time one or more loops on is the same time, whichever way the scene is read."""
+    scene = make_spacetime_scene(1, 12)
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    back, f = ply4d.read(path), ply4d.open(path)
+    assert isinstance(scene.dynamic, SpacetimeGaussians)
+    expected = Gaussians.cat([scene.static, scene.dynamic.at(2.5)])
+    for at in (scene.at, back.at, f.at):
+        assert_bit_equal(at(2.5), expected)
+        for later in (2.5 + MODEL.period, 2.5 + 3 * MODEL.period):
+            assert_bit_equal(at(later), expected)
+    assert_bit_equal(f.dynamic(2.5), scene.dynamic.at(2.5))
+    assert_bit_equal(scene.dynamic_at(0.25 + MODEL.period), scene.dynamic.at(0.25))
+    between = scene.dynamic.at(2.5)
+    for frame in (2, 3):
+        assert not torch.equal(between.means, scene.dynamic.at(frame).means), frame
+        assert not torch.equal(between.sh, scene.dynamic.at(frame).sh), frame
+    assert f.shown_time(2.5) == 2.5 and f.shown_time(7.5) == 2.5
+    out = tmp_path / "t2.5.ply"
+    ply4d.export(path, 2.5, out)
+    assert_bit_equal(ply4d.read_ply(out), expected)
+
+
+def test_a_version_1_scene_holds_each_timestamp_until_the_next(tmp_path: Path) -> None:
+    scene = make_scene(1, [3, 5, 4])
+    path = tmp_path / "scene.ply4d"
+    ply4d.write(path, scene)
+    back, f = ply4d.read(path), ply4d.open(path)
+    # time → the timestamp shown: ⌊t mod 3⌋
+    held = {0.0: 0, 0.99: 0, 1: 1, 1.5: 1, 2.999: 2, 3.0: 0, 7.25: 1, 3 * 1000 + 2.5: 2}
+    for t, timestamp in held.items():
+        expected = Gaussians.cat([scene.static, scene.dynamic[timestamp]])
+        for at in (scene.at, back.at, f.at):
+            assert_bit_equal(at(t), expected)
+        assert_bit_equal(f.dynamic(t), scene.dynamic[timestamp])
+        assert f.shown_time(t) == timestamp
+    out = tmp_path / "t1.5.ply"
+    ply4d.export(path, 1.5, out)  # the stored sections of timestamp 1, copied
+    ply4d.export(path, 1, tmp_path / "t1.ply")
+    assert out.read_bytes() == (tmp_path / "t1.ply").read_bytes()
+
+
+@pytest.mark.parametrize("t", [math.nan, -1, -0.5, math.inf, -math.inf])
+def test_a_time_that_is_not_one_is_a_time_error(tmp_path: Path, t: float) -> None:
+    """NaN, infinite or negative: one error class, an InputError (the command line's one
+    `error:` line, exit 2), from every reader of either version."""
+    from pano4d.errors import InputError
+
+    assert issubclass(ply4d.TimeError, InputError) and issubclass(ply4d.TimeError, ValueError)
+    out = tmp_path / "out.ply"
+    for name, scene in (("v1", make_scene(0, [2, 3])), ("v2", make_spacetime_scene(0, 4))):
+        path = tmp_path / f"{name}.ply4d"
+        ply4d.write(path, scene)
+        f = ply4d.open(path)
+        reads = [functools.partial(read, t) for read in
+                 (scene.at, scene.dynamic_at, f.at, f.dynamic, f.shown_time)]  # fmt: skip
+        reads += [
+            functools.partial(f.export, t, out),
+            functools.partial(ply4d.export, path, t, out),
+        ]
+        for read in reads:
+            with pytest.raises(ply4d.TimeError, match=f"time {t:g}: .*frames ≥ 0"):
+                read()
+    assert not out.exists()
+
+
+def test_playback_times_follow_the_scene_rate() -> None:
+    """A 30 fps playback of an 8 fps scene advances 8/30 of a frame a sample; a sample that
+    lands on a frame is that frame whatever the rates' rounding."""
+    times = [ply4d.playback_time(i, 30.0, 8.0) for i in range(16)]
+    assert times[1] == pytest.approx(8 / 30) and times[15] == 4.0
+    assert [math.floor(t) for t in times[:9]] == [0, 0, 0, 0, 1, 1, 1, 1, 2]
+    assert 0.3 / 0.1 < 3 and ply4d.playback_time(1, 0.1, 0.3) == 3.0
+    assert ply4d.loop_samples(6, 8.0, 30.0) == 23  # ⌈6 · 30 / 8⌉
+    assert ply4d.loop_samples(14, 8.0, 8.0) == 14
+    assert ply4d.loop_samples(3, 0.3, 0.1) == 1
+    assert ply4d.loop_samples(0, 8.0, 30.0) == 0
 
 
 # --- errors --------------------------------------------------------------------------

@@ -17,8 +17,9 @@ import subprocess
 import sys
 import threading
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -252,9 +253,10 @@ class RecordingScene:
         return name
 
 
-def sent_to_viser(path: Path) -> dict[str, web.SplatArrays]:
+def sent_to_viser(path: Path, rate: float | None = None) -> dict[str, web.SplatArrays]:
     server = types.SimpleNamespace(scene=RecordingScene())
-    web.add_scene(server, ply4d.open(path), lambda: None)
+    scene = ply4d.open(path)
+    web.add_scene(server, scene, web.playback(scene, rate), lambda: None)
     return server.scene.sent
 
 
@@ -267,8 +269,8 @@ def test_viser_gets_an_antialiased_scene_baked(scene_file: Path, tmp_path: Path)
     """viser draws classic: a classic scene's sets go as stored, an antialiased one's baked
     at its training views (the same sets `pano4d export` writes)."""
     classic = ply4d.open(scene_file)
-    sets = {"/static": classic.static(), "/dynamic/t0000": classic.dynamic(0),
-            "/dynamic/t0001": classic.dynamic(1)}  # fmt: skip
+    sets = {"/static": classic.static(), "/dynamic/0000": classic.dynamic(0),
+            "/dynamic/0001": classic.dynamic(1)}  # fmt: skip
     sent = sent_to_viser(scene_file)
     for name, g in sets.items():
         assert_same_arrays(sent[name], web.splat_arrays(g))
@@ -283,17 +285,168 @@ def test_viser_gets_an_antialiased_scene_baked(scene_file: Path, tmp_path: Path)
         assert (sent[name].opacities < web.splat_arrays(g).opacities).any(), name
 
 
-def test_viser_gets_a_version_2_scene_at_every_timestamp(tmp_path: Path) -> None:
-    """A spacetime set (format version 2) goes as one node per timestamp, each the set
-    evaluated there, as a version-1 scene's sets go."""
+def spacetime_blob(tmp_path: Path) -> tuple[SpacetimeGaussians, Path]:
+    """The blob as a spacetime set (format version 2) looping over 3 frames at 3 fps,
+    swinging sideways and changing colour, in front of the wall."""
     moving = SpacetimeGaussians.still(TimeModel(3, 1, 1), blob((2.0, 0.3, 0.0), (1.0, 0.1, 0.1)))
     moving.position_terms[:, 1, 1] = 0.5  # sin₁ of y: the blob swings sideways
     moving.colour_terms[:, 0, 2] = 1.0  # cos₁ of blue
     path = tmp_path / "spacetime.ply4d"
     ply4d.write(path, ply4d.Scene4D(wall(seed=0), moving, [0.0, 1 / 3, 2 / 3], 3.0))
+    return moving, path
+
+
+def test_viser_gets_a_version_2_scene_at_every_timestamp(tmp_path: Path) -> None:
+    """A spacetime set (format version 2) goes as one node per timestamp at the scene's
+    fps, each the set evaluated there, as a version-1 scene's sets go."""
+    moving, path = spacetime_blob(tmp_path)
     sent = sent_to_viser(path)
-    assert sorted(sent) == ["/dynamic/t0000", "/dynamic/t0001", "/dynamic/t0002", "/static"]
+    assert sorted(sent) == ["/dynamic/0000", "/dynamic/0001", "/dynamic/0002", "/static"]
     assert_same_arrays(sent["/static"], web.splat_arrays(wall(seed=0)))
     for t in range(3):
-        assert_same_arrays(sent[f"/dynamic/t{t:04d}"], web.splat_arrays(moving.at(t)))
-    assert not np.array_equal(sent["/dynamic/t0000"].centers, sent["/dynamic/t0001"].centers)
+        assert_same_arrays(sent[f"/dynamic/{t:04d}"], web.splat_arrays(moving.at(t)))
+    assert not np.array_equal(sent["/dynamic/0000"].centers, sent["/dynamic/0001"].centers)
+
+
+def test_a_rate_samples_a_version_2_loop_and_picks_version_1_sets(tmp_path: Path) -> None:
+    """At --rate 7 a 3-frame, 3 fps version-2 loop is 7 samples, each the set evaluated at
+    its own time (i · 3/7 frames); a 2-timestamp, 1 fps version-1 scene at --rate 3 is 6
+    samples that show its 2 stored sets, each sent once, and at --rate 0.5 one sample."""
+    moving, path = spacetime_blob(tmp_path)
+    plan = web.playback(ply4d.open(path), 7.0)
+    assert len(plan.times) == len(plan.set_times) == 7 and plan.step == pytest.approx(3 / 7)
+    assert plan.set_of_sample == list(range(7))
+    sent = sent_to_viser(path, 7.0)
+    assert len(sent) == 8
+    for i in range(7):
+        assert plan.times[i] == pytest.approx(i * 3 / 7)
+        assert_same_arrays(sent[f"/dynamic/{i:04d}"], web.splat_arrays(moving.at(i * 3 / 7)))
+
+    v1 = tmp_path / "v1.ply4d"
+    ply4d.write(v1, tiny_scene())
+    plan = web.playback(ply4d.open(v1), 3.0)
+    assert plan.times == pytest.approx([0, 1 / 3, 2 / 3, 1, 4 / 3, 5 / 3])
+    assert (plan.set_times, plan.set_of_sample) == ([0.0, 1.0], [0, 0, 0, 1, 1, 1])
+    assert sorted(sent_to_viser(v1, 3.0)) == ["/dynamic/0000", "/dynamic/0001", "/static"]
+    slow = web.playback(ply4d.open(v1), 0.5)
+    assert (slow.times, slow.set_times) == ([0.0], [0.0])
+    assert sorted(sent_to_viser(v1, 0.5)) == ["/dynamic/0000", "/static"]
+
+
+def test_the_recording_plays_the_samples_at_the_rate(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`pano4d web --rate 2` on a 1 fps version-1 scene of 2 timestamps: 4 samples, 0.5 s
+    each, the 2 stored sets sent once; `--rate 7` on a 3-frame, 3 fps version-2 scene: 7
+    samples, 1/7 s each, each its own set. The progress bar counts the sets sent."""
+    import viser.infra
+    from typer.testing import CliRunner
+
+    from pano4d import progress
+    from pano4d.cli import app
+
+    sleeps: list[float] = []
+    shown: list[int] = []
+    totals: list[int | None] = []
+    insert_sleep = viser.infra.StateSerializer.insert_sleep
+    show_sample = web.SceneNodes.show_sample
+    task = progress.Bars.task
+
+    def sleep(self: viser.infra.StateSerializer, duration: float) -> None:
+        sleeps.append(duration)
+        insert_sleep(self, duration)
+
+    def show(self: web.SceneNodes, i: int) -> None:
+        shown.append(self.playback.set_of_sample[i])
+        show_sample(self, i)
+
+    def counted(self: progress.Bars, description: str, total: int | None) -> progress.Task:
+        totals.append(total)
+        return task(self, description, total)
+
+    monkeypatch.setattr(viser.infra.StateSerializer, "insert_sleep", sleep)
+    monkeypatch.setattr(web.SceneNodes, "show_sample", show)
+    monkeypatch.setattr(progress.Bars, "task", counted)
+    v1 = tmp_path / "v1.ply4d"
+    ply4d.write(v1, tiny_scene())
+    _, v2 = spacetime_blob(tmp_path)
+    for path, rate, expected in [
+        (v1, "2", ([0.5] * 4, [0, 1, 1], [3])),
+        (v2, "7", ([1 / 7] * 7, [1, 2, 3, 4, 5, 6], [8])),
+    ]:
+        sleeps.clear(), shown.clear(), totals.clear()
+        site = tmp_path / f"{path.stem}-site"
+        result = CliRunner().invoke(app, ["web", str(path), str(site), "--rate", rate])
+        assert result.exit_code == 0, result.output
+        assert (sleeps, shown, totals) == expected
+        assert (site / web.RECORDING_NAME).stat().st_size > 0
+
+
+@pytest.mark.parametrize("rate", ["0", "-1", "nan", "inf"])
+@pytest.mark.parametrize("command", ["serve", "web"])
+def test_a_rate_that_is_not_one_is_one_error_line(
+    scene_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str, rate: str
+) -> None:
+    """Before anything is sent or written."""
+    from typer.testing import CliRunner
+
+    from pano4d.cli import app
+
+    def nothing_sent(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the scene was sent")  # and `serve` would run until stopped
+
+    monkeypatch.setattr(web, "start_server", nothing_sent)
+    monkeypatch.setattr(web, "write_web", nothing_sent)
+    args = [str(tmp_path / "site")] if command == "web" else []
+    result = CliRunner().invoke(app, [command, str(scene_file), *args, "--rate", rate])
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: --rate {rate}"), lines
+    assert "positive number" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+class Control(types.SimpleNamespace):
+    """A viser GUI handle: a value and the callbacks run when the page changes it."""
+
+    def on_update(self, callback: Callable[[Any], None]) -> None:
+        self.callbacks = [*getattr(self, "callbacks", []), callback]
+
+    on_click = on_update
+
+    def move_to(self, value: float) -> None:
+        self.value = value
+        for callback in self.callbacks:
+            callback(None)
+
+
+class ControlGui:
+    """The part of viser's ``server.gui`` that ``web.TimeControls`` uses."""
+
+    def add_slider(self, label: str, **kwargs: float) -> Control:
+        self.slider = Control(label=label, value=kwargs["initial_value"], **kwargs)
+        return self.slider
+
+    def add_checkbox(self, label: str, initial_value: bool) -> Control:
+        return Control(label=label, value=initial_value)
+
+    def add_button(self, label: str) -> Control:
+        return Control(label=label)
+
+
+def test_the_serve_slider_steps_through_the_samples(tmp_path: Path) -> None:
+    """At --rate 7 the 3-frame loop's slider runs 0 to 18/7 frames in steps of 3/7, and a
+    value the page rounds to its digits shows that sample's set."""
+    _, path = spacetime_blob(tmp_path)
+    scene = ply4d.open(path)
+    plan = web.playback(scene, 7.0)
+    gui = ControlGui()
+    server = types.SimpleNamespace(gui=gui)
+    nodes = web.SceneNodes(Control(), [Control(visible=k == 0) for k in range(7)], plan)
+    controls = web.TimeControls(server, nodes, web.start_camera(scene.header))
+    controls.stop()
+    assert (gui.slider.min, gui.slider.max) == (0.0, pytest.approx(18 / 7))
+    assert gui.slider.step == pytest.approx(3 / 7)
+    gui.slider.move_to(round(4 * 3 / 7, 4))
+    assert controls.sample() == 4
+    assert [node.visible for node in nodes.dynamic] == [k == 4 for k in range(7)]

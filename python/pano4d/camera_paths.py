@@ -3,6 +3,7 @@ fly-through), drawn by the same rasteriser as training."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections.abc import Iterator
@@ -68,7 +69,7 @@ def scene_clock(scene: Path) -> tuple[int, float]:
     ``fps``); a plain .ply is one timestamp."""
     if scene.suffix == ".ply4d":
         f = ply4d.open(scene)
-        return f.num_times, float(f.header["fps"])
+        return f.num_times, f.fps
     return 1, 1.0
 
 
@@ -79,43 +80,45 @@ def scene_antialiased(scene: Path) -> bool:
     return scene.suffix == ".ply4d" and ply4d.open(scene).antialiased
 
 
-def timestamp_at(frame: int, video_fps: float, scene_fps: float, num_times: int) -> int:
-    """The timestamp index that frame ``frame`` of a ``video_fps`` video shows: the scene
-    plays at its own rate, looping, whatever the video's (a 30 fps video of an 8 fps scene
-    holds each timestamp for 3.75 frames)."""
-    # The small slack keeps a frame that lands exactly on a timestamp (i·8/30 = 4.0) from
-    # rounding down to the one before.
-    return math.floor(frame * scene_fps / video_fps + 1e-9) % num_times
-
-
 def gaussians_per_frame(scene: Path, frames: int, fps: float) -> Iterator[Gaussians]:
-    """The Gaussians each of ``frames`` video frames at ``fps`` shows (``timestamp_at``);
-    each timestamp is read once for the run of frames that show it."""
-    num_times, scene_fps = scene_clock(scene)
-    shown, g = -1, Gaussians.empty()
+    """The Gaussians each of ``frames`` video frames at ``fps`` shows: the scene plays at
+    its own rate, looping, whatever the video's (``ply4d.playback_time``). A version-2 scene
+    is evaluated at each frame's own time, so a 30 fps video of an 8 fps scene moves
+    smoothly between its timestamps; a version-1 scene holds each timestamp for the run of
+    frames that show it (3.75 frames there), read once for them. The file is opened once
+    for the whole video (a version-2 spacetime set is decoded once)."""
+    if scene.suffix != ".ply4d":
+        yield from itertools.repeat(load_gaussians(scene, 0.0), frames)
+        return
+    f = ply4d.open(scene)
+    shown, g = None, Gaussians.empty()
     for i in range(frames):
-        t = timestamp_at(i, fps, scene_fps, num_times)
+        t = f.shown_time(ply4d.playback_time(i, fps, f.fps))
         if t != shown:
-            g, shown = load_gaussians(scene, t)[0], t
+            g, shown = f.at(t), t
         yield g
 
 
-def load_gaussians(scene: Path, time: int) -> tuple[Gaussians, int]:
-    """Gaussians of ``scene`` at timestamp ``time`` and the scene's number of timestamps."""
+def load_gaussians(scene: Path, time: float) -> Gaussians:
+    """Gaussians of ``scene`` at ``time`` (frames, ``ply4d.Ply4dFile.at``); a plain .ply has
+    only time 0."""
     if scene.suffix == ".ply4d":
-        f = ply4d.open(scene)
-        return f.at(time), f.num_times
+        return ply4d.open(scene).at(time)
     if time != 0:
-        raise RenderArgumentError(f"{scene} is a single .ply; --time must be 0, got {time}")
-    return ply4d.read_ply(scene), 1
+        raise RenderArgumentError(f"{scene} is a single .ply; --time must be 0, got {time:g}")
+    return ply4d.read_ply(scene)
 
 
 def to_image(rgb: torch.Tensor) -> np.ndarray:
     return rgb.detach().clamp(0, 1).cpu().numpy()
 
 
-def render_still(scene: Path, camera: Camera, time: int, out: Path, backend: str = "wgpu") -> None:
-    g, _ = load_gaussians(scene, time)
+def render_still(
+    scene: Path, camera: Camera, time: float, out: Path, backend: str = "wgpu"
+) -> None:
+    """A still of ``scene`` at ``time`` (frames: a version-2 scene evaluated there, a
+    version-1 one at the timestamp it holds)."""
+    g = load_gaussians(scene, time)
     rgb = render(g, camera, backend=backend, antialiased=scene_antialiased(scene)).rgb
     images.write_image(out, to_image(rgb))
 
@@ -171,7 +174,8 @@ def render_path(
     fps: float,
     backend: str = "wgpu",
 ) -> None:
-    """A video along a camera path; time follows the scene's own rate (``timestamp_at``)."""
+    """A video along a camera path; time follows the scene's own rate
+    (``gaussians_per_frame``)."""
     cams = path_cameras(kind, width, height, frames, path_radius(scene))
     shown = zip(gaussians_per_frame(scene, frames, fps), cams, strict=True)
     antialiased = scene_antialiased(scene)
@@ -185,5 +189,5 @@ def render_path(
 
 def path_radius(scene: Path) -> float:
     """The fly-through's radius: 5 % of the median distance of timestamp 0's Gaussians."""
-    first, _ = load_gaussians(scene, 0)
+    first = load_gaussians(scene, 0.0)
     return 0.05 * float(torch.linalg.norm(first.means, dim=-1).median()) if len(first) else 1.0

@@ -214,11 +214,15 @@ def evaluate(
 @app.command()
 def export(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
-    out: Annotated[
-        Path, typer.Argument(help="The file to write (with --sequence: a new folder).")
-    ],
+    out: Annotated[Path, typer.Argument(help="The file to write (with --sequence: a new folder).")],
     time: Annotated[
-        int | None, typer.Option("--time", "-t", help="Timestamp index (default 0).")
+        float | None,
+        typer.Option(
+            "--time",
+            "-t",
+            help="Scene time in frames, any real ≥ 0, looping (default 0): a version-2 scene "
+            "evaluated there, a version-1 one at the timestamp it holds.",
+        ),
     ] = None,
     fmt: Annotated[
         str | None,
@@ -232,8 +236,9 @@ def export(
         typer.Option(help="Every timestamp, as OUT/frame_0000.<ext>… (SuperSplat's timeline)."),
     ] = False,
 ) -> None:
-    """Write a timestamp (static + dynamic Gaussians), or every one, as splats other tools
-    open: plain 3DGS .ply, SuperSplat .compressed.ply, SPZ, SOG (.sog) or .splat."""
+    """Write the scene at one time (static + dynamic Gaussians), or every timestamp, as
+    splats other tools open: plain 3DGS .ply, SuperSplat .compressed.ply, SPZ, SOG (.sog) or
+    .splat."""
     from pano4d import ply4d, share_formats
     from pano4d.progress import Bars
 
@@ -241,8 +246,17 @@ def export(
     with Bars(enabled=sequence, transient=True, console=console) as bars:
         times = bars.task("exporting", num_times)
         written = share_formats.export(scene, out, fmt, time, sequence, times.advance)
-    what = f"{len(written)} timestamps" if sequence else f"time index {time or 0}"
+    what = f"{len(written)} timestamps" if sequence else f"time {time or 0:g}"
     console.print(f"wrote {out} ({what})")
+
+
+Rate = Annotated[
+    float | None,
+    typer.Option(
+        help="Samples a second of scene time (default: the scene's own fps): a version-2 "
+        "scene is sent evaluated at each; a version-1 one sends each timestamp shown once."
+    ),
+]
 
 
 @app.command()
@@ -252,17 +266,19 @@ def serve(
     host: Annotated[
         str, typer.Option(help="Address to listen on (0.0.0.0: every interface).")
     ] = "127.0.0.1",
+    rate: Rate = None,
 ) -> None:
     """A live 4D viewer in the browser (viser): time slider, play / pause, camera presets."""
     import time as clock
 
     from pano4d import web
-    from pano4d.ply4d import open as open_scene
     from pano4d.progress import Bars
 
+    scene_file = web.open_checked(scene)
+    plan = web.playback(scene_file, rate)
     with Bars(transient=True, console=console) as bars:
-        sets = bars.task("sending the scene", open_scene(scene).num_times + 1)
-        server, _ = web.start_server(scene, host, port, on_set=sets.advance)
+        sets = bars.task("sending the scene", len(plan.set_times) + 1)
+        server, _ = web.start_server(scene_file, plan, host, port, on_set=sets.advance)
     port = server.get_port()
     console.print(f"[green]serve:[/] {scene} at http://{host}:{port} (Ctrl+C stops)")
     console.print(web.forwarding_hint(host, port))
@@ -277,15 +293,17 @@ def serve(
 def web(
     scene: Annotated[Path, typer.Argument(help="The .ply4d scene.")],
     out: Annotated[Path, typer.Argument(help="The folder to write (new or empty).")],
+    rate: Rate = None,
 ) -> None:
     """The scene as a static web page folder (viser's client + a recording): OUT/index.html."""
     from pano4d import web as web_mod
-    from pano4d.ply4d import open as open_scene
     from pano4d.progress import Bars
 
+    scene_file = web_mod.open_checked(scene)
+    plan = web_mod.playback(scene_file, rate)
     with Bars(transient=True, console=console) as bars:
-        sets = bars.task("recording the scene", open_scene(scene).num_times + 1)
-        web_mod.write_web(scene, out, on_set=sets.advance)
+        sets = bars.task("recording the scene", len(plan.set_times) + 1)
+        web_mod.write_web(scene_file, plan, out, on_set=sets.advance)
     console.print(
         f"wrote {out}: serve the folder with any file server "
         f"(python -m http.server -d {out}) and open index.html"
@@ -318,7 +336,14 @@ def render_command(
             "'copy pose') or {K, world_to_cam, width, height}. Default: the panorama's viewpoint."
         ),
     ] = None,
-    time: Annotated[int, typer.Option("--time", "-t", help="Timestamp index (.ply4d).")] = 0,
+    time: Annotated[
+        float,
+        typer.Option(
+            "--time",
+            "-t",
+            help="Scene time of a still in frames, any real ≥ 0, looping (.ply4d; a .ply: 0).",
+        ),
+    ] = 0.0,
     width: Annotated[
         int | None,
         typer.Option(help="Image width (default 1280; 4096 with --projection equirect)."),

@@ -420,25 +420,26 @@ def viewpoint(scene: Path) -> torch.Tensor:
 
 
 def loop_frames(scene: Path, fps: float) -> int:
-    """Frames of one loop of the scene's time at ``fps``."""
+    """Frames of one loop of the scene's time at ``fps`` (at least one)."""
     num_times, scene_fps = camera_paths.scene_clock(scene)
-    return max(1, math.ceil(num_times * fps / scene_fps - 1e-9))
+    return max(1, ply4d.loop_samples(num_times, scene_fps, fps))
 
 
 def render_360(
     scene: Path,
     out: Path,
     frame: Frame360,
-    time: int = 0,
+    time: float = 0.0,
     path: str | None = None,
     frames: int | None = None,
     fps: float = 30.0,
     backend: str = "wgpu",
     bars: Bars | None = None,
 ) -> Frame360:
-    """Write ``out``: a 360° still (.png, .jpg or .exr; timestamp ``time``) or an MP4 of
-    ``frames`` frames at ``fps`` (default: one loop of the scene's time), whose time follows
-    the scene's own rate, tagged as spherical. Progress goes to ``bars``, one step a piece.
+    """Write ``out``: a 360° still (.png, .jpg or .exr; the scene at ``time``, in frames) or
+    an MP4 of ``frames`` frames at ``fps`` (default: one loop of the scene's time), whose
+    time follows the scene's own rate (``camera_paths.gaussians_per_frame``), tagged as
+    spherical. Progress goes to ``bars``, one step a piece.
     Returns the frame as drawn (a stereo frame with its IPD resolved)."""
     video = out.suffix.lower() == ".mp4"
     if path is not None and not video:
@@ -447,11 +448,11 @@ def render_360(
     antialiased = camera_paths.scene_antialiased(scene)
     eyes = eye_path(scene, path, count) if video else [viewpoint(scene)]
     if frame.stereo and frame.ipd is None:
-        frame = replace(frame, ipd=default_ipd(camera_paths.load_gaussians(scene, 0)[0], eyes[0]))
+        frame = replace(frame, ipd=default_ipd(camera_paths.load_gaussians(scene, 0.0), eyes[0]))
     task = (bars or Bars(enabled=False)).task("360° video" if video else "360° still",
                                               count * frame.pieces)  # fmt: skip
     if not video:
-        g, _ = camera_paths.load_gaussians(scene, time)
+        g = camera_paths.load_gaussians(scene, time)
         still = equirect_frame(g, frame, eyes[0], backend, task.advance, antialiased)
         images.write_image(out, still)
         return frame

@@ -4,24 +4,29 @@ A ``.ply4d`` holds a static set shown at every time and the dynamic Gaussians: o
 timestamp (format version 1) or one :class:`~pano4d.spacetime.SpacetimeGaussians` for every
 time of a looping animation (version 2). Both read the same way:
 
-- ``read(path).at(t)``: the scene's Gaussians at timestamp index ``t`` (a version-2 scene's
-  dynamic set evaluated there, ``SpacetimeGaussians.at``); ``read`` gives a :class:`Scene4D`
-  whose ``dynamic`` is a ``list[Gaussians]`` (version 1) or a ``SpacetimeGaussians``
-  (version 2).
+- ``read(path).at(t)``: the scene's Gaussians at time ``t``, in frames (timestamp indices,
+  any real t ≥ 0, taken modulo the loop of ``num_times`` frames: ``loop_time``). A version-2
+  scene's dynamic set is evaluated at that real time (``SpacetimeGaussians.at``); a
+  version-1 scene holds each timestamp until the next (it shows ⌊t⌋). ``read`` gives a
+  :class:`Scene4D` whose ``dynamic`` is a ``list[Gaussians]`` (version 1) or a
+  ``SpacetimeGaussians`` (version 2).
 - ``open(path)``: a lazy :class:`Ply4dFile` (``version``, ``num_times``, ``timestamps``,
-  ``static()``, ``dynamic(t)``, ``at(t)``, ``spacetime()`` for version 2, ``verify()``,
-  ``export(t, out)``), which decodes only what is asked for.
+  ``fps``, ``static()``, ``dynamic(t)``, ``at(t)``, ``shown_time(t)``, ``spacetime()`` for
+  version 2, ``verify()``, ``export(t, out)``), which decodes only what is asked for.
 - ``write(path, scene)`` writes version 2 when ``scene.dynamic`` is a
   ``SpacetimeGaussians``, else version 1; :class:`Ply4dWriter` streams a version-1 file
-  one timestamp at a time. ``export(path, t, out)`` writes timestamp ``t`` as a plain
-  3DGS ``.ply``; ``read_ply``/``write_ply`` read and write those.
+  one timestamp at a time. ``export(path, t, out)`` writes the scene at time ``t`` as a
+  plain 3DGS ``.ply``; ``read_ply``/``write_ply`` read and write those.
+- ``playback_time`` and ``loop_samples``: the scene times a playback at some rate shows
+  (a video's frames, a browser page's samples), the scene playing at its own fps.
 
 The reading and writing happen in Rust (``pano4d._core``, through ``pano4d.extension``);
 sets cross as its ``GaussianArrays`` and ``SpacetimeArrays``, converted by
 ``pano4d.extension``. Format errors raise ``FormatError`` (a ``ValueError``) and
 operating-system errors ``OSError``, both with the Rust message, which names the file; a
-timestamp out of range raises ``TimeIndexError``. Every write is atomic (temporary file in
-the same folder, fsync, rename).
+time that is NaN, infinite or negative raises ``TimeError``, as does any time of a scene
+with no timestamps. Every write is atomic (temporary file in the same folder, fsync,
+rename).
 """
 
 from __future__ import annotations
@@ -52,9 +57,12 @@ __all__ = [
     "Ply4dFile",
     "Ply4dWriter",
     "Scene4D",
-    "TimeIndexError",
+    "TimeError",
     "export",
+    "loop_samples",
+    "loop_time",
     "open",
+    "playback_time",
     "read",
     "read_ply",
     "write",
@@ -68,8 +76,41 @@ class FormatError(InputError, ValueError):
     """A .ply or .ply4d file that does not hold what its format says."""
 
 
-class TimeIndexError(InputError, IndexError):
-    """A timestamp index the scene does not have."""
+class TimeError(InputError, ValueError):
+    """A scene time that is not one: NaN, infinite or negative (or any time of a scene with
+    no timestamps)."""
+
+
+def loop_time(t: float, num_times: int) -> float:
+    """Scene time ``t`` (frames, any real ≥ 0) within the loop of ``num_times`` frames:
+    ``t mod num_times``, in [0, num_times). The one place a time given to a scene is checked
+    and wrapped; a TimeError names a time that is not one."""
+    if not (math.isfinite(t) and t >= 0):
+        raise TimeError(f"time {t:g}: a scene time is a finite number of frames ≥ 0")
+    if num_times == 0:
+        raise TimeError(f"time {t:g}: the scene has no timestamps")
+    return float(t % num_times)
+
+
+# A playback time this close to a whole frame is that frame: the rates' rounding must not
+# show a version-1 scene's timestamp before it (0.3 fps / 0.1 fps is 2.9999999999999996).
+WHOLE_FRAME_SLACK = 1e-9
+
+
+def playback_time(sample: int, rate: float, fps: float) -> float:
+    """The scene time (frames) that sample ``sample`` of a playback at ``rate`` samples a
+    second shows (a video's frame, a browser page's step): the scene plays at its own
+    ``fps`` whatever the rate, so a 30 fps video of an 8 fps scene advances 8/30 of a
+    frame a video frame. Not wrapped: ``loop_time`` does that where the scene is read."""
+    t = sample * fps / rate
+    whole = round(t)
+    return float(whole) if abs(t - whole) <= WHOLE_FRAME_SLACK else t
+
+
+def loop_samples(num_times: int, fps: float, rate: float) -> int:
+    """How many samples at ``rate`` a second one loop of ``num_times`` frames at ``fps``
+    takes: ⌈num_times · rate / fps⌉ (0 for a scene with no timestamps)."""
+    return math.ceil(num_times * rate / fps - WHOLE_FRAME_SLACK)
 
 
 @contextlib.contextmanager
@@ -104,11 +145,11 @@ def _default_provenance() -> dict[str, Any]:
 
 @dataclass
 class Scene4D:
-    """A 4D scene: ``static`` is shown at every timestamp, the dynamic Gaussians of
-    timestamp ``t`` only at ``t``: ``dynamic[t]`` of one set per timestamp (format version
-    1), or ``dynamic.at(t)`` of one ``SpacetimeGaussians`` (version 2, ``timestamps`` one
-    per frame of its loop): ``dynamic_at(t)`` either way, and ``at(t)`` static and dynamic
-    together.
+    """A 4D scene: ``static`` is shown at every time, the dynamic Gaussians at time ``t``
+    (frames) only then: ``dynamic[t]`` of one set per timestamp (format version 1, each
+    held until the next), or ``dynamic.at(t)`` of one ``SpacetimeGaussians`` (version 2,
+    ``timestamps`` one per frame of its loop): ``dynamic_at(t)`` either way, at any real
+    t ≥ 0 taken modulo the loop, and ``at(t)`` static and dynamic together.
 
     ``camera`` is the source panorama's camera: ``{"position": [x, y, z], "params": {...}}``
     with free-form params; ``provenance`` holds ``tool_version`` and ``config_hash``;
@@ -144,21 +185,18 @@ class Scene4D:
     def num_times(self) -> int:
         return len(self.timestamps)
 
-    def dynamic_at(self, t: int) -> Gaussians:
-        """The dynamic Gaussians of timestamp index ``t``."""
-        _check_time(t, self.num_times)
+    def dynamic_at(self, t: float) -> Gaussians:
+        """The dynamic Gaussians at time ``t`` (frames, any real ≥ 0, taken modulo the loop:
+        ``loop_time``): the spacetime set evaluated there, or the set of the timestamp it
+        holds (⌊t⌋)."""
+        time = loop_time(t, self.num_times)
         if isinstance(self.dynamic, SpacetimeGaussians):
-            return self.dynamic.at(t)
-        return self.dynamic[t]
+            return self.dynamic.at(time)
+        return self.dynamic[math.floor(time)]
 
-    def at(self, t: int) -> Gaussians:
-        """All Gaussians visible at timestamp index ``t``: static followed by dynamic."""
+    def at(self, t: float) -> Gaussians:
+        """All Gaussians visible at time ``t`` (``dynamic_at``): static followed by dynamic."""
         return Gaussians.cat([self.static, self.dynamic_at(t)])
-
-
-def _check_time(t: int, num_times: int) -> None:
-    if not 0 <= t < num_times:
-        raise TimeIndexError(f"timestamp index {t} out of range: the scene has {num_times}")
 
 
 def _meta_json(
@@ -291,7 +329,8 @@ def write(path: PathLike, scene: Scene4D) -> None:
 class Ply4dFile:
     """A ``.ply4d`` file opened lazily (memory-mapped): only the sets asked for are read,
     and each one's checksum is verified when it is read. A version-2 file's spacetime set
-    is decoded once, on first use, and evaluated at each timestamp asked for."""
+    is decoded once, on first use, and evaluated at each time asked for: keep one
+    ``Ply4dFile`` open for a whole playback."""
 
     def __init__(self, path: PathLike) -> None:
         self.path = os.fspath(path)
@@ -315,6 +354,11 @@ class Ply4dFile:
         return list(self.header["timestamps"])
 
     @property
+    def fps(self) -> float:
+        """Timestamps a second: the rate the scene plays at."""
+        return float(self.header["fps"])
+
+    @property
     def antialiased(self) -> bool:
         """The mode every render of this scene must use (absent in older files: classic)."""
         return bool(self.header["antialiased"])
@@ -331,44 +375,52 @@ class Ply4dFile:
                 self._spacetime = spacetime_from(self._reader.read_spacetime())
         return self._spacetime
 
-    def dynamic(self, t: int) -> Gaussians:
-        """The dynamic Gaussians of timestamp index ``t`` (version 2: the spacetime set
-        evaluated there)."""
-        _check_time(t, self.num_times)
-        if self.version == 2:
-            return self.spacetime().at(t)
-        with _format_errors():
-            return gaussians_from(self._reader.read_dynamic(t))
+    def shown_time(self, t: float) -> float:
+        """The time whose Gaussians the scene shows at time ``t`` (frames, any real ≥ 0):
+        ``t`` within the loop (``loop_time``) for version 2, the timestamp it holds (⌊…⌋)
+        for version 1. Two times show the same Gaussians when their shown times are equal,
+        so a playback reads a version-1 set once for every time that shows it."""
+        time = loop_time(t, self.num_times)
+        return time if self.version == 2 else float(math.floor(time))
 
-    def at(self, t: int) -> Gaussians:
-        """Static followed by the dynamic Gaussians of timestamp index ``t``."""
-        _check_time(t, self.num_times)
+    def dynamic(self, t: float) -> Gaussians:
+        """The dynamic Gaussians at time ``t`` (``shown_time``): version 2, the spacetime set
+        evaluated there; version 1, the stored set of the timestamp it holds."""
+        time = self.shown_time(t)
         if self.version == 2:
-            return Gaussians.cat([self.static(), self.dynamic(t)])
+            return self.spacetime().at(time)
         with _format_errors():
-            return gaussians_from(self._reader.read_at(t))
+            return gaussians_from(self._reader.read_dynamic(int(time)))
+
+    def at(self, t: float) -> Gaussians:
+        """Static followed by the dynamic Gaussians at time ``t`` (``dynamic``)."""
+        time = self.shown_time(t)
+        if self.version == 2:
+            return Gaussians.cat([self.static(), self.dynamic(time)])
+        with _format_errors():
+            return gaussians_from(self._reader.read_at(int(time)))
 
     def verify(self) -> None:
         """Check every section's checksum; raises FormatError on the first mismatch."""
         with _format_errors():
             self._reader.verify()
 
-    def export(self, t: int, path_out: PathLike) -> None:
-        """Write timestamp ``t`` (static + dynamic) as a plain 3DGS ``.ply``: a classic
-        version-1 scene's stored values copied byte for byte, a version-2 one's evaluated at
-        ``t``, an antialiased one's baked for the classic viewers that read the file
-        (``share_formats.for_classic_viewers``)."""
-        _check_time(t, self.num_times)
+    def export(self, t: float, path_out: PathLike) -> None:
+        """Write the scene at time ``t`` (static + dynamic, ``at``) as a plain 3DGS ``.ply``:
+        a classic version-1 scene's stored values copied byte for byte, a version-2 one's
+        evaluated at ``t``, an antialiased one's baked for the classic viewers that read the
+        file (``share_formats.for_classic_viewers``)."""
+        time = self.shown_time(t)
         if self.antialiased:
             # Imported here: share_formats builds on this module.
             from pano4d.share_formats import for_classic_viewers
 
-            write_ply(path_out, for_classic_viewers(self.at(t), self))
+            write_ply(path_out, for_classic_viewers(self.at(time), self))
         elif self.version == 2:
-            write_ply(path_out, self.at(t))
+            write_ply(path_out, self.at(time))
         else:
             with _format_errors():
-                self._reader.export_ply(t, os.fspath(path_out))
+                self._reader.export_ply(int(time), os.fspath(path_out))
 
     def read(self) -> Scene4D:
         """Decode the whole scene."""
@@ -391,7 +443,7 @@ class Ply4dFile:
 
 
 def open(path: PathLike) -> Ply4dFile:
-    """Open a ``.ply4d`` file for lazy, per-timestamp reading."""
+    """Open a ``.ply4d`` file for lazy reading, time by time."""
     return Ply4dFile(path)
 
 
@@ -400,7 +452,7 @@ def read(path: PathLike) -> Scene4D:
     return Ply4dFile(path).read()
 
 
-def export(path_in: PathLike, t: int, path_out: PathLike) -> None:
-    """Write timestamp ``t`` of a ``.ply4d`` (static + dynamic) as a plain 3DGS ``.ply``
+def export(path_in: PathLike, t: float, path_out: PathLike) -> None:
+    """Write a ``.ply4d`` at time ``t`` (frames; static + dynamic) as a plain 3DGS ``.ply``
     (``Ply4dFile.export``: an antialiased scene's baked for classic viewers)."""
     Ply4dFile(path_in).export(t, path_out)

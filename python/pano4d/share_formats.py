@@ -1,4 +1,4 @@
-"""``pano4d export``: a timestamp of a .ply4d, or every timestamp as a numbered sequence, in
+"""``pano4d export``: a .ply4d at one time, or every timestamp as a numbered sequence, in
 the formats people share splats in: plain 3DGS .ply, SuperSplat's .compressed.ply, Niantic's
 SPZ (version 4), PlayCanvas's SOG (the bundled .sog zip) and .splat.
 
@@ -261,22 +261,23 @@ def export(
     scene: Path,
     out: Path,
     fmt_name: str | None = None,
-    time: int | None = None,
+    time: float | None = None,
     sequence: bool = False,
     on_time: Callable[[], None] = lambda: None,
 ) -> list[Path]:
-    """Write timestamp ``time`` (default 0) of ``scene`` to the file ``out``, or with
-    ``sequence`` every timestamp into the new folder ``out`` as ``frame_0000.<ext>``….
+    """Write ``scene`` at ``time`` (frames, default 0: ``ply4d.Ply4dFile.at``, a version-2
+    scene evaluated at that real time) to the file ``out``, or with ``sequence`` every
+    timestamp into the new folder ``out`` as ``frame_0000.<ext>``….
     ``fmt_name`` None takes the format from ``out``'s ending. Returns the files written;
     ``on_time`` is called after each timestamp."""
     if sequence and time is not None:
         raise ExportArgumentError(
-            f"--sequence writes every timestamp; it takes no --time (got --time {time})"
+            f"--sequence writes every timestamp; it takes no --time (got --time {time:g})"
         )
     fmt = check_format(fmt_name if fmt_name is not None else format_of(out))
     source = ply4d.open(scene)
     if not sequence:
-        write(for_classic_viewers(source.at(0 if time is None else time), source), out, fmt)
+        write(for_classic_viewers(source.at(0.0 if time is None else time), source), out, fmt)
         on_time()
         return [out]
     if out.exists() and not (out.is_dir() and not any(out.iterdir())):

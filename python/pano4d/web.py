@@ -3,11 +3,16 @@
 Both hand the scene to viser's own Gaussian-splat renderer (``scene.add_gaussian_splats``) and
 play it in viser's prebuilt web client, which ships inside the viser wheel (no Node, no npm):
 
-- ``serve``: a live viewer. The static set is sent once, each timestamp's dynamic set once
-  (hidden), and the time slider only switches which dynamic set is visible, so a time change
-  costs the browser a re-sort, not a download.
+Both play one loop of the scene's time in samples, ``rate`` a second of scene time (the
+scene's own fps unless the user gives one: ``Playback``). A version-2 scene sends its
+spacetime set evaluated at each sample's time; a version-1 scene sends each stored set the
+samples show once, and each sample shows the timestamp it holds.
+
+- ``serve``: a live viewer. The static set is sent once, each dynamic set once (hidden),
+  and the time slider (in frames, one step a sample) and playback only switch which dynamic
+  set is visible, so a time change costs the browser a re-sort, not a download.
 - ``web``: the same scene as a static folder: a viser recording (``scene.viser``, viser's
-  scene serialisation) in which the dynamic sets take turns at the scene's fps, the client
+  scene serialisation) in which the samples take turns, 1/rate seconds each, the client
   copied verbatim (``viser-client.html``) and an ``index.html`` that opens the client on the
   recording with the start camera as the URL parameters the client reads
   (``playbackPath``, ``initialCameraPosition``/``LookAt``/``Up``/``Fov``).
@@ -141,21 +146,66 @@ def open_checked(path: Path) -> ply4d.Ply4dFile:
     return scene
 
 
+class WebArgumentError(InputError, ValueError):
+    """A --rate that ``pano4d serve`` or ``pano4d web`` cannot use."""
+
+
+@dataclass(frozen=True)
+class Playback:
+    """How a page plays one loop of a scene: sample ``i`` shows scene time ``times[i]``
+    (frames, ``step`` apart: 1/``rate`` seconds of scene time) through dynamic set
+    ``set_of_sample[i]``; ``set_times`` holds the time of each set sent, each once, in the
+    order first shown (version 1: the timestamps the samples hold; version 2: every
+    sample's own time)."""
+
+    rate: float  # samples a second of scene time
+    step: float  # frames between samples: fps / rate
+    times: list[float]
+    set_times: list[float]
+    set_of_sample: list[int]
+
+
+def playback(scene: ply4d.Ply4dFile, rate: float | None = None) -> Playback:
+    """One loop of ``scene`` sampled at ``rate`` samples a second (None: the scene's fps):
+    ⌈num_times · rate / fps⌉ samples. A --rate that is not a positive number is refused
+    (WebArgumentError) before anything is sent."""
+    fps = scene.fps
+    rate = fps if rate is None else rate
+    if not (math.isfinite(rate) and rate > 0):
+        raise WebArgumentError(
+            f"--rate {rate:g}: samples a second of scene time must be a positive number "
+            f"(the scene plays at {fps:g} fps)"
+        )
+    times = [
+        ply4d.playback_time(i, rate, fps)
+        for i in range(ply4d.loop_samples(scene.num_times, fps, rate))
+    ]
+    shown = [scene.shown_time(t) for t in times]
+    set_times = list(dict.fromkeys(shown))
+    set_of_time = {t: k for k, t in enumerate(set_times)}
+    return Playback(rate, fps / rate, times, set_times, [set_of_time[t] for t in shown])
+
+
 @dataclass
 class SceneNodes:
-    """The scene's viser nodes: the static set and one hidden-or-shown node per timestamp."""
+    """The scene's viser nodes: the static set, one hidden-or-shown node per dynamic set
+    sent, and the playback whose samples pick the one shown."""
 
     static: Any
     dynamic: list[Any]
+    playback: Playback
 
-    def show_time(self, t: int) -> None:
-        for i, handle in enumerate(self.dynamic):
-            handle.visible = i == t
+    def show_sample(self, i: int) -> None:
+        shown = self.playback.set_of_sample[i]
+        for k, handle in enumerate(self.dynamic):
+            handle.visible = k == shown
 
 
-def add_scene(server: Any, scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> SceneNodes:
-    """Send the static set and every dynamic set (only the first shown), as a classic viewer
-    must receive them; z is up."""
+def add_scene(
+    server: Any, scene: ply4d.Ply4dFile, plan: Playback, on_set: Callable[[], None]
+) -> SceneNodes:
+    """Send the static set and the dynamic set of every time in ``plan.set_times`` (only the
+    first shown), as a classic viewer must receive them; z is up."""
     server.scene.set_up_direction("+z")
 
     def add(name: str, g: Gaussians, visible: bool) -> Any:
@@ -167,8 +217,10 @@ def add_scene(server: Any, scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -
         return handle
 
     static = add("/static", scene.static(), True)
-    dynamic = [add(f"/dynamic/t{t:04d}", scene.dynamic(t), t == 0) for t in range(scene.num_times)]
-    return SceneNodes(static, dynamic)
+    dynamic = [
+        add(f"/dynamic/{k:04d}", scene.dynamic(t), k == 0) for k, t in enumerate(plan.set_times)
+    ]
+    return SceneNodes(static, dynamic, plan)
 
 
 def set_initial_camera(server: Any, camera: StartCamera) -> None:
@@ -215,9 +267,9 @@ def index_html(camera: StartCamera, title: str) -> str:
 """
 
 
-def record_scene(scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> bytes:
-    """The scene as a viser recording: all sets at time 0 (the first timestamp shown), then
-    one timestamp every 1/fps seconds, so the client's playback bar is the timeline."""
+def record_scene(scene: ply4d.Ply4dFile, plan: Playback, on_set: Callable[[], None]) -> bytes:
+    """The scene as a viser recording: all sets at time 0 (the first sample shown), then
+    one sample every 1/rate seconds, so the client's playback bar is the timeline."""
     viser = viser_module()
     host = "127.0.0.1"
     # The loopback server only feeds the serialiser: keep its URL banner (printed to stdout
@@ -227,37 +279,40 @@ def record_scene(scene: ply4d.Ply4dFile, on_set: Callable[[], None]) -> bytes:
     try:
         set_initial_camera(server, start_camera(scene.header))
         serializer = server.get_scene_serializer()
-        nodes = add_scene(server, scene, on_set)
-        fps = float(scene.header["fps"])
-        if scene.num_times > 1:
-            for t in range(1, scene.num_times):
-                serializer.insert_sleep(1.0 / fps)
-                nodes.show_time(t)
-            serializer.insert_sleep(1.0 / fps)  # the last timestamp is shown for 1/fps too
+        nodes = add_scene(server, scene, plan, on_set)
+        if len(plan.times) > 1:
+            for i in range(1, len(plan.times)):
+                serializer.insert_sleep(1.0 / plan.rate)
+                nodes.show_sample(i)
+            serializer.insert_sleep(1.0 / plan.rate)  # the last sample is shown for 1/rate too
         return bytes(serializer.serialize())
     finally:
         with contextlib.redirect_stdout(io.StringIO()):
             server.stop()
 
 
-def write_web(path: Path, out: Path, on_set: Callable[[], None] = lambda: None) -> Path:
-    """Write ``out/`` (index.html, viser-client.html, scene.viser) for ``path``.
+def write_web(
+    scene: ply4d.Ply4dFile, plan: Playback, out: Path, on_set: Callable[[], None] = lambda: None
+) -> Path:
+    """Write ``out/`` (index.html, viser-client.html, scene.viser) for ``scene`` (opened
+    with ``open_checked``) played as ``plan`` says.
 
-    The scene is verified before ``out`` is touched; the folder is built beside it and
-    renamed into place, so a failure leaves no half-written folder.
+    The folder is built beside ``out`` and renamed into place, so a failure leaves no
+    half-written folder.
     """
-    scene = open_checked(path)
     client = client_html_path()
     if out.exists() and not (out.is_dir() and not any(out.iterdir())):
         raise InputError(f"{out} exists and is not an empty folder; choose a new one")
-    recording = record_scene(scene, on_set)
+    recording = record_scene(scene, plan, on_set)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         tmp.chmod(0o755)  # mkdtemp's 0700 would hide the folder from a web server's user
         (tmp / RECORDING_NAME).write_bytes(recording)
         shutil.copyfile(client, tmp / CLIENT_NAME)
-        (tmp / "index.html").write_text(index_html(start_camera(scene.header), path.stem))
+        (tmp / "index.html").write_text(
+            index_html(start_camera(scene.header), Path(scene.path).stem)
+        )
         if out.exists():
             out.rmdir()
         tmp.rename(out)
@@ -271,32 +326,42 @@ def write_web(path: Path, out: Path, on_set: Callable[[], None] = lambda: None) 
 
 
 class TimeControls:
-    """The time slider, play / pause, loop, and the camera presets of the live viewer."""
+    """The time slider, play / pause, loop, and the camera presets of the live viewer. The
+    slider is the scene time in frames, one step a sample of ``nodes.playback``; playing
+    moves it a sample every 1/rate seconds."""
 
-    def __init__(self, server: Any, nodes: SceneNodes, fps: float, camera: StartCamera) -> None:
-        self.server, self.nodes, self.fps, self.camera = server, nodes, fps, camera
+    def __init__(self, server: Any, nodes: SceneNodes, camera: StartCamera) -> None:
+        self.server, self.nodes, self.camera = server, nodes, camera
+        self.plan = nodes.playback
         gui = server.gui
-        last = max(len(nodes.dynamic) - 1, 0)
-        self.slider = gui.add_slider("time index", min=0, max=last, step=1, initial_value=0)
+        last = self.plan.times[-1] if self.plan.times else 0.0
+        self.slider = gui.add_slider(
+            "time (frames)", min=0.0, max=last, step=self.plan.step, initial_value=0.0
+        )
         self.playing = gui.add_checkbox("play", initial_value=False)
         self.loop = gui.add_checkbox("loop", initial_value=True)
         gui.add_button("panorama viewpoint").on_click(lambda _: self.reset_cameras())
         gui.add_button("turntable").on_click(lambda _: self.start_turntable())
-        self.slider.on_update(lambda _: nodes.show_time(int(self.slider.value)))
+        self.slider.on_update(lambda _: nodes.show_sample(self.sample()))
         self._stop = threading.Event()
         threading.Thread(target=self._play, daemon=True).start()
 
+    def sample(self) -> int:
+        """The sample the slider is on (the client rounds its value to a few digits)."""
+        nearest = round(float(self.slider.value) / self.plan.step)
+        return min(max(nearest, 0), len(self.plan.times) - 1)
+
     def _play(self) -> None:
-        while not self._stop.wait(1.0 / self.fps):
-            if not self.playing.value or len(self.nodes.dynamic) < 2:
+        while not self._stop.wait(1.0 / self.plan.rate):
+            if not self.playing.value or len(self.plan.times) < 2:
                 continue
-            t = int(self.slider.value) + 1
-            if t >= len(self.nodes.dynamic):
+            i = self.sample() + 1
+            if i >= len(self.plan.times):
                 if not self.loop.value:
                     self.playing.value = False
                     continue
-                t = 0
-            self.slider.value = t
+                i = 0
+            self.slider.value = self.plan.times[i]
 
     def reset_cameras(self) -> None:
         for client in self.server.get_clients().values():
@@ -324,18 +389,22 @@ class TimeControls:
 
 
 def start_server(
-    path: Path, host: str, port: int, on_set: Callable[[], None] = lambda: None
+    scene: ply4d.Ply4dFile,
+    plan: Playback,
+    host: str,
+    port: int,
+    on_set: Callable[[], None] = lambda: None,
 ) -> tuple[Any, TimeControls]:
-    """Start the live viewer on ``host:port`` with the scene loaded; returns (server, controls)."""
-    scene = open_checked(path)
+    """Start the live viewer on ``host:port`` with ``scene`` (opened with ``open_checked``)
+    loaded and played as ``plan`` says; returns (server, controls)."""
     viser = viser_module()
     server = viser.ViserServer(host=host, port=port, verbose=False)
     try:
         camera = start_camera(scene.header)
         set_initial_camera(server, camera)
         server.gui.configure_theme(control_layout="floating", show_share_button=False)
-        nodes = add_scene(server, scene, on_set)
-        controls = TimeControls(server, nodes, float(scene.header["fps"]), camera)
+        nodes = add_scene(server, scene, plan, on_set)
+        controls = TimeControls(server, nodes, camera)
     except BaseException:
         server.stop()
         raise
