@@ -177,7 +177,7 @@ def test_a_video_shows_a_version_2_scene_between_its_frames(
     ply4d.write(path, scene)
     decoded = []
     monkeypatch.setattr(ply4d, "spacetime_from", lambda a: decoded.append(a) or spacetime_from(a))
-    shown = list(camera_paths.gaussians_per_frame(path, 16, 30.0))
+    shown = list(camera_paths.gaussians_at(path, camera_paths.video_times(path, 16, 30.0)))
     assert len(decoded) == 1
     for i, g in enumerate(shown):
         assert_same(g, glowing.at(i * 8 / 30 % 4))
@@ -186,7 +186,7 @@ def test_a_video_shows_a_version_2_scene_between_its_frames(
     stored = [glowing.at(t) for t in range(4)]
     path = tmp_path / "v1.ply4d"
     ply4d.write(path, ply4d.Scene4D(Gaussians.empty(), stored, scene.timestamps, 8.0))
-    shown = list(camera_paths.gaussians_per_frame(path, 16, 30.0))
+    shown = list(camera_paths.gaussians_at(path, camera_paths.video_times(path, 16, 30.0)))
     held = [0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 0]  # ⌊i · 8 / 30⌋ mod 4
     for g, timestamp in zip(shown, held, strict=True):
         assert_same(g, stored[timestamp])

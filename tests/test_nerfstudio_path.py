@@ -7,12 +7,22 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
+from test_camera_paths import red_wall
+from test_panorama_video import decoded
+from typer.testing import CliRunner
 
-from pano4d import nerfstudio_path
+from pano4d import camera_paths, nerfstudio_path, panorama_video, ply4d
 from pano4d.camera import Camera
+from pano4d.cli import app
+from pano4d.gaussians import Gaussians
 from pano4d.nerfstudio_path import CameraPathError, DataparserTransform
+from pano4d.renderer import render
+from pano4d.spacetime import SpacetimeGaussians, TimeModel
+
+runner = CliRunner()
 
 
 def rolled_camera(width: int = 64, height: int = 48) -> Camera:
@@ -158,3 +168,120 @@ def test_unreadable_files_are_one_error(tmp_path: Path) -> None:
     parser.write_text(json.dumps({"transform": [[1, 0, 0, 0]], "scale": 1.0}))
     with pytest.raises(CameraPathError, match="transform: expected 12 numbers"):
         nerfstudio_path.read_dataparser_transform(parser)
+
+
+# --- pano4d render --path camera_path.json --------------------------------------------------
+
+
+def glowing_scene(tmp_path: Path) -> Path:
+    """A version-2 scene of 4 frames at 8 fps whose wall's red rises and falls in time."""
+    glowing = SpacetimeGaussians.still(TimeModel(4, 1, 0), red_wall())
+    glowing.canonical.sh[:, 0, 0] = 0.0
+    glowing.colour_terms[:, 0, 0] = 1.5  # cos₁ of the red DC term
+    path = tmp_path / "glowing.ply4d"
+    ply4d.write(path, ply4d.Scene4D(Gaussians.empty(), glowing, [0.0, 0.125, 0.25, 0.375], 8.0))
+    return path
+
+
+def wall_cameras() -> list[Camera]:
+    """Three poses that see the wall 4 m ahead along +x, one rolled."""
+    return [
+        Camera.from_fov(70.0, 64, 48, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
+        Camera.from_fov(70.0, 64, 48, (0.5, 0.3, 0.1), (1.0, -0.2, 0.05)),
+        Camera.from_fov(70.0, 64, 48, (1.0, -0.4, 0.0), (1.0, 0.3, -0.1), (0.0, 0.3, 1.0)),
+    ]
+
+
+def test_a_camera_path_renders_what_the_equivalent_camera_json_renders(tmp_path: Path) -> None:
+    """Each frame of the path is bit for bit the still `pano4d render --camera` draws from
+    the same pose at the entry's render_time (0.625 of a 4-frame loop: time 2.5)."""
+    scene = glowing_scene(tmp_path)
+    times = (0.0, 0.3, 0.625)
+    entries = [
+        entry(c, fov=50.0, render_time=r) for c, r in zip(wall_cameras(), times, strict=True)
+    ]
+    path = nerfstudio_path.read(path_file(tmp_path, entries))
+    drawn = list(camera_paths.path_frames(scene, path.cameras(), path.scene_times(4, 8.0), "wgpu"))
+    source = ply4d.open(scene)
+    for cam, r, frame in zip(path.cameras(), times, drawn, strict=True):
+        equivalent = camera_paths.parse_camera(json.dumps(cam.to_dict()), 64, 48)
+        still = camera_paths.to_image(render(source.at(r * 4), equivalent).rgb)
+        assert np.array_equal(frame, still), r
+    last = path.cameras()[2]
+    for t in (2.0, 3.0):  # time 2.5 is neither neighbouring frame
+        other = camera_paths.to_image(render(source.at(t), last).rgb)
+        assert np.abs(other - drawn[2]).max() > 0.05, t
+
+
+def test_render_writes_the_video_the_file_describes(tmp_path: Path) -> None:
+    scene = glowing_scene(tmp_path)
+    times = (0.0, 0.3, 0.625)
+    entries = [
+        entry(c, fov=50.0, render_time=r) for c, r in zip(wall_cameras(), times, strict=True)
+    ]
+    cp = path_file(tmp_path, entries, render_width=32, render_height=24, fps=8)
+    out = tmp_path / "path.mp4"
+    ran = runner.invoke(app, ["render", str(scene), "--path", str(cp), "--out", str(out)])
+    assert ran.exit_code == 0, ran.output
+    assert "3 frames, 32x24 at 8 fps" in " ".join(ran.output.split())
+    frames = decoded(out)
+    assert len(frames) == 3 and frames[0].shape == (24, 32, 3)
+    source, cams = ply4d.open(scene), nerfstudio_path.read(cp).cameras()
+    for i, (got, cam, r) in enumerate(zip(frames, cams, times, strict=True)):
+        want = camera_paths.to_image(render(source.at(4 * r), cam).rgb)
+        clock = camera_paths.to_image(render(source.at(float(i)), cam).rgb)  # without the times
+        assert np.abs(got - want).mean() < 0.02 < np.abs(got - clock).mean() or r == 0, i
+
+
+def test_an_equirectangular_path_makes_a_360_video_from_its_positions(tmp_path: Path) -> None:
+    scene = glowing_scene(tmp_path)
+    entries = [{"camera_to_world": c.camera_to_world_gl().tolist()} for c in wall_cameras()]
+    cp = path_file(tmp_path, entries, camera_type="equirectangular", render_width=64,
+                   render_height=32, fps=8)  # fmt: skip
+    out = tmp_path / "pano.mp4"
+    ran = runner.invoke(app, ["render", str(scene), "--path", str(cp), "--out", str(out)])
+    assert ran.exit_code == 0, ran.output
+    frames = decoded(out)
+    assert len(frames) == 3 and frames[0].shape == (32, 64, 3)
+    source, frame = ply4d.open(scene), panorama_video.Frame360(64, 32)
+    for i, (got, cam) in enumerate(zip(frames, wall_cameras(), strict=True)):
+        want = panorama_video.equirect_frame(source.at(float(i)), frame, cam.position)
+        assert np.abs(got - want).mean() < 0.02, i
+    cp.write_text(cp.read_text().replace('"render_height": 32', '"render_height": 30'))
+    ran = runner.invoke(app, ["render", str(scene), "--path", str(cp), "--out", str(out)])
+    assert ran.exit_code == 2
+    assert "render_width × render_height 64x30: a mono equirect frame must be 2:1" in ran.output
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--width", "64"], "--width: "),
+        (["--fps", "24"], "--fps: "),
+        (["--projection", "equirect"], "is a perspective camera path"),
+    ],
+)
+def test_options_the_file_sets_are_one_error_line(
+    tmp_path: Path, extra: list[str], message: str
+) -> None:
+    scene = glowing_scene(tmp_path)
+    cp = path_file(tmp_path, [entry(wall_cameras()[0])])
+    out = tmp_path / "v.mp4"
+    ran = runner.invoke(app, ["render", str(scene), "--path", str(cp), "--out", str(out), *extra])
+    assert ran.exit_code == 2, ran.output
+    assert ran.output.startswith("error: ") and message in ran.output
+    assert "Traceback" not in ran.output and not out.exists()
+
+
+def test_a_bad_file_through_the_command_is_one_line(tmp_path: Path) -> None:
+    scene = glowing_scene(tmp_path)
+    cp = path_file(tmp_path, [entry(wall_cameras()[0]), bad_entry(fov=0)])
+    out = tmp_path / "v.mp4"
+    ran = runner.invoke(app, ["render", str(scene), "--path", str(cp), "--out", str(out)])
+    assert ran.exit_code == 2
+    lines = ran.output.strip().splitlines()
+    assert len(lines) == 1 and "camera_path[1]: fov must be degrees in (0, 180)" in lines[0]
+    transform = ["--path-transform", str(tmp_path / "dataparser_transforms.json")]
+    ran = runner.invoke(app, ["render", str(scene), "--path", "turntable", "--out", str(out),
+                              *transform])  # fmt: skip
+    assert ran.exit_code == 2 and "add --path FILE.json" in ran.output

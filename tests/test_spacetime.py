@@ -1,7 +1,8 @@
 """Spacetime Gaussians: the evaluation's two forms agree, and cross the extension intact.
 
 The reference evaluation is ``SpacetimeGaussians.at`` (torch); the Rust form
-(``spacetime.rs``, what the ``.ply4d`` reader and the viewer evaluate a version-2 file with)
+(``spacetime.rs``, what the ``.ply4d`` reader evaluates a version-2 file with; the GPU pass
+that the trainer and the viewer run is tested against it in Rust, ``spacetime/gpu_set.rs``)
 is reached by writing a version-2 file and reading its dynamic set at each integer
 timestamp. Both must match the values worked out by hand for the opacity's sign, the wrap
 around the loop and the order of the Fourier basis, and each other on random sets.

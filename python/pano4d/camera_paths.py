@@ -3,16 +3,15 @@ fly-through), drawn by the same rasteriser as training."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from pano4d import images, ply4d
+from pano4d import images, nerfstudio_path, ply4d
 from pano4d.camera import Camera
 from pano4d.errors import InputError
 from pano4d.gaussians import Gaussians
@@ -33,7 +32,16 @@ def parse_camera(spec: str | None, width: int, height: int) -> Camera:
     """
     if spec is None:
         return Camera.from_fov(DEFAULT_FOV_DEG, width, height)
-    text = Path(spec).read_text() if Path(spec).is_file() else spec
+    # JSON text is told apart by its brace, not by asking the file system: a long pose is
+    # no file name (stat raises "File name too long" on it).
+    text = spec
+    if not spec.lstrip().startswith("{"):
+        try:
+            text = Path(spec).read_text()
+        except OSError as e:
+            raise RenderArgumentError(
+                f"--camera {spec}: neither JSON text nor a readable file ({e.strerror or e})"
+            ) from e
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
@@ -80,22 +88,29 @@ def scene_antialiased(scene: Path) -> bool:
     return scene.suffix == ".ply4d" and ply4d.open(scene).antialiased
 
 
-def gaussians_per_frame(scene: Path, frames: int, fps: float) -> Iterator[Gaussians]:
-    """The Gaussians each of ``frames`` video frames at ``fps`` shows: the scene plays at
-    its own rate, looping, whatever the video's (``ply4d.playback_time``). A version-2 scene
-    is evaluated at each frame's own time, so a 30 fps video of an 8 fps scene moves
+def video_times(scene: Path, frames: int, fps: float) -> list[float]:
+    """The scene time (frames) each of ``frames`` video frames at ``fps`` shows: the scene
+    plays at its own rate, looping, whatever the video's (``ply4d.playback_time``)."""
+    _, scene_fps = scene_clock(scene)
+    return [ply4d.playback_time(i, fps, scene_fps) for i in range(frames)]
+
+
+def gaussians_at(scene: Path, times: Iterable[float]) -> Iterator[Gaussians]:
+    """The Gaussians ``scene`` shows at each of ``times`` (frames, ``Ply4dFile.at``). A
+    version-2 scene is evaluated at each time, so a 30 fps video of an 8 fps scene moves
     smoothly between its timestamps; a version-1 scene holds each timestamp for the run of
-    frames that show it (3.75 frames there), read once for them. The file is opened once
-    for the whole video (a version-2 spacetime set is decoded once)."""
-    if scene.suffix != ".ply4d":
-        yield from itertools.repeat(load_gaussians(scene, 0.0), frames)
+    times that show it, read once for them. The file is opened once for all of them (a
+    version-2 spacetime set is decoded once)."""
+    if scene.suffix != ".ply4d":  # one moment, shown at every time
+        g = ply4d.read_ply(scene)
+        yield from (g for _ in times)
         return
     f = ply4d.open(scene)
     shown, g = None, Gaussians.empty()
-    for i in range(frames):
-        t = f.shown_time(ply4d.playback_time(i, fps, f.fps))
-        if t != shown:
-            g, shown = f.at(t), t
+    for t in times:
+        time = f.shown_time(t)
+        if time != shown:
+            g, shown = f.at(time), time
         yield g
 
 
@@ -174,17 +189,29 @@ def render_path(
     fps: float,
     backend: str = "wgpu",
 ) -> None:
-    """A video along a camera path; time follows the scene's own rate
-    (``gaussians_per_frame``)."""
+    """A video along a built-in camera path (``path_cameras``); time follows the scene's
+    own rate (``video_times``)."""
     cams = path_cameras(kind, width, height, frames, path_radius(scene))
-    shown = zip(gaussians_per_frame(scene, frames, fps), cams, strict=True)
+    images.write_video(out, path_frames(scene, cams, video_times(scene, frames, fps), backend), fps)
+
+
+def render_camera_path(
+    scene: Path, path: nerfstudio_path.CameraPath, out: Path, backend: str = "wgpu"
+) -> None:
+    """A video along a perspective ``camera_path.json``: its cameras at its fps, each frame at
+    its scene time (``CameraPath.scene_times``)."""
+    num_times, scene_fps = scene_clock(scene)
+    times = path.scene_times(num_times, scene_fps)
+    images.write_video(out, path_frames(scene, path.cameras(), times, backend), path.fps)
+
+
+def path_frames(
+    scene: Path, cameras: list[Camera], times: list[float], backend: str
+) -> Iterator[np.ndarray]:
+    """The image of each camera at its time, drawn as ``render_still`` draws one."""
     antialiased = scene_antialiased(scene)
-    images.write_video(
-        out,
-        (to_image(render(g, cam, backend=backend, antialiased=antialiased).rgb)
-         for g, cam in shown),
-        fps,
-    )  # fmt: skip
+    for g, cam in zip(gaussians_at(scene, times), cameras, strict=True):
+        yield to_image(render(g, cam, backend=backend, antialiased=antialiased).rgb)
 
 
 def path_radius(scene: Path) -> float:

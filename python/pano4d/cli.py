@@ -356,15 +356,27 @@ def render_command(
         ),
     ] = None,
     path: Annotated[
-        str | None, typer.Option(help="Render a video instead: turntable | fly-through.")
+        str | None,
+        typer.Option(
+            help="Render a video instead: turntable | fly-through | a nerfstudio "
+            "camera_path.json (its size, fps, poses, fov and render_time; README, 'Camera paths')."
+        ),
+    ] = None,
+    path_transform: Annotated[
+        Path | None,
+        typer.Option(
+            help="nerfstudio's dataparser_transforms.json: maps a camera_path.json made in "
+            "nerfstudio on `pano4d views`' dataset back to the scene's coordinates."
+        ),
     ] = None,
     frames: Annotated[
         int | None,
         typer.Option(help="Video length in frames (default 120; a 360° video: one loop)."),
     ] = None,
     fps: Annotated[
-        float, typer.Option(help="Video frame rate; scene time plays at the scene's own.")
-    ] = 30.0,
+        float | None,
+        typer.Option(help="Video frame rate (default 30); scene time plays at the scene's own."),
+    ] = None,
     projection: Annotated[
         str,
         typer.Option(help="perspective | equirect (a 360° still, or a video with .mp4)."),
@@ -395,6 +407,19 @@ def render_command(
         fail("--stereo top-bottom renders a 360° frame: add --projection equirect")
     if ipd is not None and stereo is None:
         fail(f"--ipd {ipd} sets the stereo eye distance: add --stereo top-bottom")
+    if path is not None and path.endswith(".json"):
+        given = {"--camera": camera, "--width": width, "--height": height, "--frames": frames,
+                 "--fps": fps}  # fmt: skip
+        for name, value in given.items():
+            if value is not None:
+                fail(f"{name}: {path} sets the video's cameras, size, length and rate")
+        drawn = render_camera_path_file(scene, Path(path), path_transform, out, projection,
+                                        stereo is not None, ipd, backend)  # fmt: skip
+        console.print(f"wrote {out} ({drawn})")
+        return
+    if path_transform is not None:
+        fail(f"--path-transform {path_transform} maps a camera_path.json: add --path FILE.json")
+    fps = 30.0 if fps is None else fps
     if projection == "equirect":
         # Defaults: 4096 wide; a mono frame 2:1, a stereo frame square (two 2:1 eyes).
         w = width if width is not None else 4096 if stereo or height is None else 2 * height
@@ -417,6 +442,36 @@ def render_command(
         count = 120 if frames is None else frames
         camera_paths.render_path(scene, path, out, w, h, count, fps, backend=backend)
     console.print(f"wrote {out}")
+
+
+def render_camera_path_file(
+    scene: Path,
+    path_file: Path,
+    transform_file: Path | None,
+    out: Path,
+    projection: str,
+    stereo: bool,
+    ipd: float | None,
+    backend: str,
+) -> str:
+    """``pano4d render --path camera_path.json``: the video the file describes (its
+    ``camera_type`` decides perspective or 360°); returns what was drawn, in words."""
+    from pano4d import camera_paths, nerfstudio_path, panorama_video
+    from pano4d.progress import Bars
+
+    path = nerfstudio_path.read(path_file)
+    if transform_file is not None:
+        path = path.to_scene(nerfstudio_path.read_dataparser_transform(transform_file))
+    size = f"{len(path.frames)} frames, {path.width}x{path.height} at {path.fps:g} fps"
+    if path.camera_type == "equirectangular":
+        with Bars(transient=True, console=console) as bars:
+            drawn = panorama_video.render_360_path(scene, path, out, stereo, ipd, backend, bars)
+        eyes = f", top-bottom stereo, IPD {drawn.ipd:.4g} scene units" if stereo else ""
+        return f"{size}, equirect{eyes}"
+    if projection == "equirect" or stereo:
+        fail(f"--projection equirect: {path_file} is a perspective camera path (camera_type)")
+    camera_paths.render_camera_path(scene, path, out, backend=backend)
+    return size
 
 
 @app.command()

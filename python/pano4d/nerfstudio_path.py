@@ -30,6 +30,7 @@ from typing import Any, Literal
 
 import torch
 
+from pano4d import ply4d
 from pano4d.camera import Camera, focal_length
 from pano4d.errors import InputError
 
@@ -59,6 +60,7 @@ class CameraPath:
     height: int
     fps: float
     camera_type: CameraType
+    source: str  # the file, for messages
 
     def cameras(self) -> list[Camera]:
         """The perspective camera of every frame, as ns-render builds it: focal length from
@@ -84,7 +86,7 @@ class CameraPath:
         ``render_time`` when every entry has one, else the scene's own clock at ``fps``."""
         if all(frame.render_time is not None for frame in self.frames):
             return [float(frame.render_time) * num_times for frame in self.frames]  # type: ignore[arg-type]
-        return [i * scene_fps / self.fps for i in range(len(self.frames))]
+        return [ply4d.playback_time(i, self.fps, scene_fps) for i in range(len(self.frames))]
 
     def to_scene(self, transform: DataparserTransform) -> CameraPath:
         """The path in the scene's own coordinates, made in nerfstudio's normalised ones."""
@@ -92,7 +94,7 @@ class CameraPath:
             PathFrame(transform.to_scene(f.camera_to_world), f.fov_deg, f.render_time)
             for f in self.frames
         ]
-        return CameraPath(frames, self.width, self.height, self.fps, self.camera_type)
+        return CameraPath(frames, self.width, self.height, self.fps, self.camera_type, self.source)
 
 
 @dataclass(frozen=True)
@@ -131,7 +133,7 @@ def read(path: Path) -> CameraPath:
     frames = [
         _frame(entry, f"{where}: camera_path[{i}]", camera_type) for i, entry in enumerate(entries)
     ]
-    return CameraPath(frames, width, height, fps, camera_type)
+    return CameraPath(frames, width, height, fps, camera_type, where)
 
 
 def read_dataparser_transform(path: Path) -> DataparserTransform:

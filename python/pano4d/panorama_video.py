@@ -49,6 +49,7 @@ from pano4d.camera import Camera, look_rotation
 from pano4d.errors import InputError
 from pano4d.fsutil import atomic_path
 from pano4d.gaussians import Gaussians
+from pano4d.nerfstudio_path import CameraPath
 from pano4d.progress import Bars
 from pano4d.renderer import render
 from pano4d.resample import perspective_sampler
@@ -438,7 +439,7 @@ def render_360(
 ) -> Frame360:
     """Write ``out``: a 360° still (.png, .jpg or .exr; the scene at ``time``, in frames) or
     an MP4 of ``frames`` frames at ``fps`` (default: one loop of the scene's time), whose
-    time follows the scene's own rate (``camera_paths.gaussians_per_frame``), tagged as
+    time follows the scene's own rate (``camera_paths.video_times``), tagged as
     spherical. Progress goes to ``bars``, one step a piece.
     Returns the frame as drawn (a stereo frame with its IPD resolved)."""
     video = out.suffix.lower() == ".mp4"
@@ -457,13 +458,59 @@ def render_360(
         images.write_image(out, still)
         return frame
 
-    def rendered() -> Iterator[np.ndarray]:
-        shown = camera_paths.gaussians_per_frame(scene, count, fps)
-        for g, eye in zip(shown, eyes, strict=True):
-            yield equirect_frame(g, frame, eye, backend, task.advance, antialiased)
+    write_360_video(scene, out, frame, eyes, camera_paths.video_times(scene, count, fps), fps,
+                    backend, task.advance)  # fmt: skip
+    return frame
 
-    # Tagged before it takes its name: no reader sees an untagged 360° video.
+
+def render_360_path(
+    scene: Path,
+    path: CameraPath,
+    out: Path,
+    stereo: bool,
+    ipd: float | None,
+    backend: str = "wgpu",
+    bars: Bars | None = None,
+) -> Frame360:
+    """Write ``out``: the 360° video of an equirectangular ``camera_path.json`` at its size
+    and fps, the eye at each entry's position, the scene at each entry's time
+    (``CameraPath.scene_times``); world-aligned, as every 360° frame here."""
+    if out.suffix.lower() != ".mp4":
+        raise PanoramaArgumentError(f"a camera path makes a video: --out {out} must be an .mp4")
+    try:
+        frame = Frame360(path.width, path.height, stereo, ipd)
+    except PanoramaArgumentError as e:  # its message names the options, not the file's keys
+        size = f"render_width × render_height {path.width}x{path.height}"
+        raise PanoramaArgumentError(f"{path.source}: {size}: {str(e).split(': ', 1)[1]}") from e
+    eyes = path.positions()
+    if frame.stereo and frame.ipd is None:
+        frame = replace(frame, ipd=default_ipd(camera_paths.load_gaussians(scene, 0.0), eyes[0]))
+    num_times, scene_fps = camera_paths.scene_clock(scene)
+    times = path.scene_times(num_times, scene_fps)
+    task = (bars or Bars(enabled=False)).task("360° video", len(eyes) * frame.pieces)
+    write_360_video(scene, out, frame, eyes, times, path.fps, backend, task.advance)
+    return frame
+
+
+def write_360_video(
+    scene: Path,
+    out: Path,
+    frame: Frame360,
+    eyes: list[torch.Tensor],
+    times: list[float],
+    fps: float,
+    backend: str,
+    advance: Callable[[], None],
+) -> None:
+    """The 360° video of the eye at each of ``eyes`` and the scene at each of ``times``,
+    tagged as spherical before it takes its name: no reader sees an untagged 360° video."""
+    antialiased = camera_paths.scene_antialiased(scene)
+
+    def rendered() -> Iterator[np.ndarray]:
+        shown = camera_paths.gaussians_at(scene, times)
+        for g, eye in zip(shown, eyes, strict=True):
+            yield equirect_frame(g, frame, eye, backend, advance, antialiased)
+
     with atomic_path(out) as tmp:
         images.write_video(tmp, rendered(), fps, codec=video_codec(frame.width, frame.height))
         write_spherical_metadata(tmp, frame.stereo)
-    return frame
