@@ -14,7 +14,7 @@ import traceback
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 from rich.console import Console
@@ -23,6 +23,9 @@ from typer.core import TyperGroup
 from pano4d.errors import InputError, fail
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY
 from pano4d.region_cli import app as regions_app
+
+if TYPE_CHECKING:
+    from pano4d.live import LiveView
 
 console = Console(stderr=True)
 Backend = Literal["wgpu", "torch"]
@@ -489,6 +492,25 @@ def train(
     checkpoint_every: Annotated[
         int, typer.Option(min=1, help="Optimisation steps between checkpoints.")
     ] = CHECKPOINT_EVERY,
+    serve: Annotated[
+        bool,
+        typer.Option(
+            "--serve",
+            help="Show the Gaussians in the browser as they train (viser, as pano4d serve), "
+            "refreshed at every checkpoint; the server stops when training ends.",
+        ),
+    ] = False,
+    port: Annotated[
+        int | None,
+        typer.Option(min=1, max=65535, help="Port of the live view (with --serve; default 8080)."),
+    ] = None,
+    host: Annotated[
+        str | None,
+        typer.Option(
+            help="Address the live view listens on (with --serve; default 127.0.0.1, "
+            "0.0.0.0: every interface)."
+        ),
+    ] = None,
 ) -> None:
     """Both phases end to end: animate, align depth, fit Gaussians, write OUTPUT/scene.ply4d.
 
@@ -497,15 +519,48 @@ def train(
     from pano4d.lift.trainers import trainer_for
     from pano4d.train import run_train
 
+    for name, value in (("--port", port), ("--host", host)):
+        if value is not None and not serve:
+            fail(f"{name} {value} is the live view's: add --serve")
     cfg = load_config(scene)
     try:
         kind = trainer_for(backend, trainer)
     except ValueError as e:
         fail(f"--trainer: {e}")
-    metrics = run_train(
-        cfg, render_backend=backend, trainer=kind, checkpoint_every=checkpoint_every
-    )
-    print_run_table(metrics, Path(cfg.output), "pano4d train")
+    host = "127.0.0.1" if host is None else host
+    with live_view(serve, host, 8080 if port is None else port, checkpoint_every) as live:
+        metrics = run_train(
+            cfg, render_backend=backend, trainer=kind, checkpoint_every=checkpoint_every,
+            on_snapshot=None if live is None else live.show,
+        )  # fmt: skip
+    output = Path(cfg.output)
+    print_run_table(metrics, output, "pano4d train")
+    if serve:
+        console.print(  # one line, whatever the width: scripts and tests read it
+            f"the live view has stopped; pano4d serve {output / 'scene.ply4d'} shows the result",
+            soft_wrap=True,
+        )
+
+
+@contextmanager
+def live_view(
+    serve: bool, host: str, port: int, checkpoint_every: int
+) -> Iterator[LiveView | None]:
+    """``pano4d train --serve``'s live view (``pano4d.live.LiveView``) for the length of the
+    block, its address printed before training starts; None without --serve."""
+    if not serve:
+        yield None
+        return
+    from pano4d import live, web
+
+    with live.serving(host, port) as view:
+        console.print(
+            f"[green]live view:[/] http://{host}:{port} (the Gaussians as they train, "
+            f"refreshed every {checkpoint_every} steps; it stops when training ends)",
+            soft_wrap=True,
+        )
+        console.print(web.forwarding_hint(host, port), soft_wrap=True)
+        yield view
 
 
 @app.command()

@@ -29,7 +29,13 @@ from typing import Any
 from pano4d.config import SceneConfig, config_hash, load_config
 from pano4d.lift.checkpoints import CHECKPOINT_EVERY, Checkpoints
 from pano4d.lift.export import export
-from pano4d.lift.pipeline import StepHook, animation_frames, lift, working_panorama
+from pano4d.lift.pipeline import (
+    SnapshotHook,
+    StepHook,
+    animation_frames,
+    lift,
+    working_panorama,
+)
 from pano4d.lift.pipeline import resume_point as lift_resume_point
 from pano4d.lift.trainers import trainer_for
 from pano4d.progress import Bars
@@ -44,6 +50,7 @@ def run_train(
     on_step: StepHook | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
     trainer: str | None = None,
+    on_snapshot: SnapshotHook | None = None,
 ) -> dict[str, Any]:
     """Run ``cfg`` end to end (resuming from checkpoints); returns the metrics written.
 
@@ -52,7 +59,9 @@ def run_train(
     ``checkpoint_every``: optimisation steps between checkpoints (stages are always
     checkpointed when done). ``trainer``: "resident" (the training loop on the GPU) or
     "torch" (the torch reference); by default the resident one with the wgpu rasteriser,
-    the torch one with the torch one.
+    the torch one with the torch one. ``on_snapshot(snapshot)`` sees the scene whenever the
+    static and dynamic stages read their Gaussians back anyway (``lift.pipeline.SceneSnapshot``:
+    at checkpoints and each optimisation's end): ``pano4d train --serve``'s live view.
     """
     if checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be ≥ 1, got {checkpoint_every}")
@@ -66,8 +75,9 @@ def run_train(
         frames_dir = animation_frames(cfg, checkpoints, progress, on_step)
         animate_seconds = time.perf_counter() - start
         lifted = lift(
-            cfg, frames_dir, checkpoints, bars, render_backend, trainer, on_step, animate_seconds
-        )
+            cfg, frames_dir, checkpoints, bars, render_backend, trainer, on_step, animate_seconds,
+            on_snapshot,
+        )  # fmt: skip
         return export(lifted, on_step)
 
 

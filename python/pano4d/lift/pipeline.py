@@ -74,6 +74,34 @@ from pano4d.sphere import view_layout
 StepHook = Callable[[str, int], None]
 
 
+@dataclass(frozen=True)
+class SceneSnapshot:
+    """The scene as the static and dynamic stages have it at one of the moments they read
+    the trained Gaussians back anyway: a checkpoint (``run_trainer``) or an optimisation's
+    end. What a live view shows (``pano4d.live``); nothing is read from the device for it.
+
+    Its sets are the stages' own (never changed once handed over): copy nothing to keep
+    one, and convert them off the training thread."""
+
+    optimisation: str  # the one in progress, as its TrainLog names it: "static", "dynamic t=2"
+    step: int  # its steps done
+    iterations: int  # of at most this many
+    static: Gaussians  # the static set (the one in training, in the static stage)
+    # None in the static stage; in the dynamic stage one set per timestamp (those done and
+    # the one in training, last) or one spacetime set for every timestamp.
+    dynamic: list[Gaussians] | SpacetimeGaussians | None
+    timestamps: int  # the animation's frames
+    antialiased: bool  # trained in the antialiased mode (docs/rasterizer.md, "Two modes")
+    focal_px: float  # the training views' focal length in pixels
+
+
+# on_snapshot(snapshot): called with the scene at each checkpoint of the static and dynamic
+# stages and at each of their optimisations' ends (``SceneSnapshot``), never in between.
+SnapshotHook = Callable[[SceneSnapshot], None]
+# Inside a stage: the trained set as read back, and its step.
+ReadBackHook = Callable[[Gaussians | SpacetimeGaussians, int], None]
+
+
 # --- 1. inputs -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class LiftInputs:
@@ -373,12 +401,14 @@ def run_trainer(
     on_step: StepHook | None,
     extra: Callable[[], dict[str, Any]],
     rule: StopRule,
+    on_read_back: ReadBackHook | None = None,
 ) -> Gaussians:
     """Run a trainer (of ``kind``) with a progress bar, its loss terms (every LOSS_EVERY steps
     and at the last) and densify-and-prunes recorded in ``log``, and a checkpoint every
     ``checkpoints.every`` steps (``extra()`` adds the stage's own state to it, its log too).
     ``rule`` decides, at each loss record, whether it has converged; where and why it
-    stopped goes into ``log.stop``."""
+    stopped goes into ``log.stop``. ``on_read_back(trained, step)`` gets the trained set each
+    checkpoint has read back, and the result."""
     task = bars.task(log.name, trainer.knobs.iterations, trainer.step)
 
     def step(tr: Trainer) -> bool:
@@ -393,13 +423,41 @@ def run_trainer(
             log.stop = stop
             task.update(tr.knobs.iterations, loss=tr.last_loss)
         elif tr.step % checkpoints.every == 0:
-            state = {**extra(), "trainer": tr.state_dict(), "trainer_kind": kind}
-            checkpoints.save(name, state)
+            trainer_state = tr.state_dict()
+            checkpoints.save(name, {**extra(), "trainer": trainer_state, "trainer_kind": kind})
+            if on_read_back is not None:  # what the checkpoint read, not a read-back of its own
+                on_read_back(tr.trained_in(trainer_state), tr.step)
         if on_step is not None:
             on_step(name, tr.step)
         return stop is not None
 
-    return trainer.run(step)
+    result = trainer.run(step)
+    if on_read_back is not None:
+        on_read_back(result, trainer.step)
+    return result
+
+
+def snapshot_hook(
+    on_snapshot: SnapshotHook | None,
+    inputs: LiftInputs,
+    optimisation: str,
+    iterations: int,
+    scene: Callable[[Any], tuple[Gaussians, list[Gaussians] | SpacetimeGaussians | None]],
+) -> ReadBackHook | None:
+    """``run_trainer``'s read-back hook for one optimisation: the scene ``scene(trained)``
+    makes of the set read back (its static set and its dynamic sets), handed to
+    ``on_snapshot``; None without one."""
+    if on_snapshot is None:
+        return None
+
+    def show(trained: Gaussians | SpacetimeGaussians, step: int) -> None:
+        static, dynamic = scene(trained)
+        on_snapshot(SceneSnapshot(
+            optimisation, step, iterations, static, dynamic, len(inputs.frames),
+            inputs.knobs.antialiased, float(inputs.cameras[0].fx),
+        ))  # fmt: skip
+
+    return show
 
 
 @dataclass(frozen=True)
@@ -418,14 +476,18 @@ def fit_static(
     checkpoints: Checkpoints,
     bars: Bars,
     on_step: StepHook | None,
+    on_snapshot: SnapshotHook | None = None,
 ) -> StaticSet:
     state = checkpoints.load("static") or {"seconds": 0.0}
     knobs = inputs.knobs
     iterations = knobs.gaussian_iterations
+    show = snapshot_hook(on_snapshot, inputs, "static", iterations, lambda g: (g, None))
     if "done" in state:
         checkpoints.resumed("static", step=iterations)
         done = Gaussians.from_numpy(state["done"], inputs.device)
         log = TrainLog.from_dict(state["log"])
+        if show is not None:  # a rerun shows the static set it resumes the dynamic stage on
+            show(done, iterations)
         return StaticSet(done, state["seconds"], state["per_step"], log)
     views = views_of_frame(
         inputs,
@@ -461,7 +523,7 @@ def fit_static(
 
     result = run_trainer(
         trainer, inputs.trainer, log, checkpoints, "static", bars, on_step,
-        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations),
+        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations), show,
     )  # fmt: skip
     per_step = (time.perf_counter() - start) / max(1, trainer.step - first_step)
     checkpoints.save("static", {
@@ -540,6 +602,7 @@ def fit_dynamic(
     checkpoints: Checkpoints,
     bars: Bars,
     on_step: StepHook | None,
+    on_snapshot: SnapshotHook | None = None,
 ) -> DynamicSets:
     state = checkpoints.load("dynamic") or {"done": [], "seconds": 0.0, "logs": []}
     done = [Gaussians.from_numpy(d, inputs.device) for d in state["done"]]
@@ -630,11 +693,16 @@ def fit_dynamic(
             if inputs.knobs.stop_when_converged
             else StopRule.fixed(iterations)
         )
+        # The timestamps done, and this one as read back.
+        show = snapshot_hook(
+            on_snapshot, inputs, log.name, iterations, lambda g: (static, [*done, g])
+        )
         done.append(
             run_trainer(
-                trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved, rule
+                trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step, saved, rule,
+                show,
             )
-        )
+        )  # fmt: skip
         checkpoints.save("dynamic", saved())
     spent = seconds()
     # The last timestamp's step, trained whole.
@@ -656,6 +724,7 @@ def fit_spacetime(
     checkpoints: Checkpoints,
     bars: Bars,
     on_step: StepHook | None,
+    on_snapshot: SnapshotHook | None = None,
 ) -> DynamicSets:
     """One dynamic set for every timestamp: the moving region's Gaussians, each with
     functions of time (``pano4d.spacetime``), started from frame 0's set with every
@@ -719,9 +788,10 @@ def fit_spacetime(
     def seconds() -> float:
         return float(state["seconds"]) + time.perf_counter() - start
 
+    show = snapshot_hook(on_snapshot, inputs, log.name, iterations, lambda g: (static, g))
     result = run_trainer(
         trainer, inputs.trainer, log, checkpoints, "dynamic", bars, on_step,
-        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations),
+        lambda: {"seconds": seconds(), "log": log.to_dict()}, StopRule.fixed(iterations), show,
     )  # fmt: skip
     assert isinstance(result, SpacetimeGaussians)
     checkpoints.save(
@@ -806,21 +876,24 @@ def lift(
     trainer: str,
     on_step: StepHook | None,
     animate_seconds: float,
+    on_snapshot: SnapshotHook | None = None,
 ) -> Lifted:
     """Every stage in order on the animation in ``frames_dir``; ``trainer`` is a key of
-    trainers.TRAINERS."""
+    trainers.TRAINERS; ``on_snapshot`` sees the scene at the static and dynamic stages'
+    read-backs (``SceneSnapshot``)."""
     inputs = prepare(cfg, frames_dir, render_backend, trainer)
     view_depth = estimate_depth(inputs, checkpoints, bars, on_step)
     alignment = align_depth(inputs, view_depth.depth, checkpoints, bars, on_step)
     initial = initial_sets(inputs, alignment.depths[0])
     median = alignment.median_depth
     static = fit_static(
-        inputs, initial.static, view_depth.depth[0], median, checkpoints, bars, on_step
-    )
+        inputs, initial.static, view_depth.depth[0], median, checkpoints, bars, on_step,
+        on_snapshot,
+    )  # fmt: skip
     fit = fit_spacetime if inputs.knobs.dynamic_model == "spacetime" else fit_dynamic
     dynamic = fit(
         inputs, static.gaussians, initial.dynamic, view_depth.depth, median, checkpoints, bars,
-        on_step,
+        on_step, on_snapshot,
     )  # fmt: skip
     timings = {
         "animate": animate_seconds,

@@ -289,6 +289,10 @@ class ResidentTrainer(Trainer[TrainedSet]):
             "last_loss": self.last_loss,
         }
 
+    def trained_in(self, state: dict[str, Any]) -> TrainedSet:
+        # ``state_dict`` read the parameters back into fresh host tensors of their own.
+        return cast(TrainedSet, _from_checkpoint(state["params"]))
+
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if not state.get("resident"):
             raise ValueError(

@@ -111,15 +111,25 @@ class GaussianTrainer(Trainer[TrainedSet]):
 
     def _trained(self) -> Gaussians | SpacetimeGaussians:
         """The set being trained, differentiable in the parameters."""
-        p = self.params
+        return self._set_of(self.params, self.anchors, self.unit, self.term_anchors)
+
+    def _set_of(
+        self,
+        p: dict[str, torch.Tensor],
+        anchors: torch.Tensor,
+        unit: torch.Tensor,
+        term_anchors: torch.Tensor | None,
+    ) -> Gaussians | SpacetimeGaussians:
+        """The set that parameter groups ``p`` stand for: positions as offsets from
+        ``anchors`` (and ``term_anchors``) in units of ``unit``."""
         g = Gaussians(
-            self.anchors + p["offsets"] * self.unit[:, None],
+            anchors + p["offsets"] * unit[:, None],
             p["log_scales"],
             p["quats"],
             p["opacity_logits"],
             torch.cat([p["sh_dc"], p["sh_rest"]], dim=1),
         )
-        if self.model is None or self.term_anchors is None:
+        if self.model is None or term_anchors is None:
             return g
         return SpacetimeGaussians(
             self.model,
@@ -127,7 +137,7 @@ class GaussianTrainer(Trainer[TrainedSet]):
             p["time_centre"],
             p["time_log_width"],
             p["colour_terms"],
-            self.term_anchors + p["position_terms"] * self.unit[:, None, None],
+            term_anchors + p["position_terms"] * unit[:, None, None],
         )
 
     def gaussians(self, time: float = 0.0) -> Gaussians:
@@ -249,6 +259,13 @@ class GaussianTrainer(Trainer[TrainedSet]):
             state["time_model"] = [m.period, m.colour_harmonics, m.position_harmonics]
             state["term_anchors"] = self.term_anchors.cpu()
         return state
+
+    def trained_in(self, state: dict[str, Any]) -> TrainedSet:
+        # On a CPU run the state's tensors are the parameters themselves (``.cpu()`` copies
+        # nothing), which the next steps change in place: the set is built from copies.
+        p = {name: value.clone() for name, value in state["params"].items()}
+        trained = self._set_of(p, state["anchors"], state["unit"], state.get("term_anchors"))
+        return cast(TrainedSet, trained)
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if ("time_model" in state) != (self.model is not None):

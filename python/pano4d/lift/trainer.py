@@ -21,7 +21,8 @@ each Gaussian's initial depth, so one learning rate fits a Gaussian at 2 m and o
 1000 m. For the run's diagnosis (``lift.diagnosis``) a trainer keeps its last loss terms in
 ``last_terms`` and its last densify-and-prune's counts in ``last_densify``.
 ``state_dict`` / ``load_state_dict`` capture everything a resumed run needs (parameters,
-Adam moments, the view generator, the step), so a resumed run continues bit-for-bit.
+Adam moments, the view generator, the step), so a resumed run continues bit-for-bit;
+``trained_in`` gives the trained set such a state holds.
 """
 
 from __future__ import annotations
@@ -204,6 +205,12 @@ class Trainer(ABC, Generic[TrainedSet]):
     @abstractmethod
     def state_dict(self) -> dict[str, Any]:
         """Everything a resumed run needs."""
+
+    @abstractmethod
+    def trained_in(self, state: dict[str, Any]) -> TrainedSet:
+        """The trained set a ``state_dict()`` holds, on the host, as ``result()`` would give
+        it at that step, without reading anything from the device again: what a checkpoint
+        has already read back is what a live view shows (``pano4d.live``)."""
 
     @abstractmethod
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
