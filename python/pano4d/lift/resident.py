@@ -17,7 +17,7 @@ step (``sem_every = 1``, as the torch trainer) unless ``sem_every`` is raised.
 
 A spacetime set (``pano4d.spacetime``) is drawn at each step's view time by the device's
 evaluate pass, whose adjoint carries the gradient to its time parameters (splat-core's
-``train/evaluate.rs``); Adam updates every parameter there and holds the log-widths at the
+``spacetime/evaluate.rs``); Adam updates every parameter there and holds the log-widths at the
 torch trainer's floor. Its state comes back as a spacetime set too.
 
 ``ResidentTrainer`` has ``GaussianTrainer``'s constructor less ``render_fn`` (renders
