@@ -768,10 +768,7 @@ pub(crate) fn temp_path_beside(path: &Path, purpose: &str) -> Result<(PathBuf, P
 
 /// Writes a file through `fill` into a temporary file in the same folder, fsyncs it and
 /// renames it over `path`, so readers never see a half-written file.
-pub(crate) fn write_atomic(
-    path: &Path,
-    fill: impl FnOnce(&mut File) -> io::Result<()>,
-) -> Result<()> {
+pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> Result<()> {
     let (dir, tmp) = temp_path_beside(path, "tmp")?;
     let result = (|| {
         let mut file = File::create(&tmp)?;

@@ -1,7 +1,7 @@
 //! The egui application: a view of the scene drawn by [`FrameRenderer`] on egui's own
-//! wgpu device, a time bar, and a side panel with counts, timings, camera and render
-//! settings. Errors (unreadable files, scenes too large for the GPU) are shown in the
-//! window instead of ending the program.
+//! wgpu device, a time bar, and a side panel with counts, timings, camera, camera-path
+//! keyframes and render settings. Errors (unreadable files, scenes too large for the GPU)
+//! are shown in the window instead of ending the program.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -13,6 +13,7 @@ use eframe::egui_wgpu;
 use crate::camera::{
     CameraMode, CameraPose, MoveInput, SceneExtent, ViewCamera, MAX_FOV_DEG, MIN_FOV_DEG,
 };
+use crate::camera_path::{Keyframe, PathDraft};
 use crate::render::{save_png, FrameOptions, FrameRenderer};
 use crate::residency;
 use crate::scene::Scene;
@@ -86,6 +87,8 @@ pub struct ViewerApp {
     /// Something changed since the last frame was drawn.
     dirty: bool,
     pose_text: String,
+    /// The camera path being keyed, in the open scene's coordinates.
+    path: PathDraft,
     status: String,
     frame_seconds: f64,
     /// Where the scene was drawn in the last pass, in points.
@@ -117,6 +120,7 @@ impl ViewerApp {
             display: None,
             dirty: true,
             pose_text: String::new(),
+            path: PathDraft::default(),
             status: String::new(),
             frame_seconds: 0.0,
             view_rect: egui::Rect::NOTHING,
@@ -151,6 +155,8 @@ impl ViewerApp {
             Ok((scene, streams)) => {
                 self.extent = scene.extent;
                 self.camera = ViewCamera::panorama_viewpoint(&self.extent);
+                // Keyframes are poses in the scene's coordinates: a new scene starts anew.
+                self.path = PathDraft::for_scene(path);
                 let scene = Arc::new(scene);
                 self.opened = Some(OpenScene {
                     time: TimeControl::new(&scene.timestamps, scene.timeline()),
@@ -198,11 +204,16 @@ impl ViewerApp {
         self.view_rect
     }
 
+    /// The camera path being keyed.
+    pub fn camera_path(&self) -> &PathDraft {
+        &self.path
+    }
+
     fn handle_keys(&mut self, ctx: &egui::Context) {
         if ctx.egui_wants_keyboard_input() {
             return;
         }
-        let (input, dt, reset, toggle_mode, toggle_play, step) = ctx.input(|i| {
+        let (input, dt, reset, toggle_mode, toggle_play, step, keyframe) = ctx.input(|i| {
             let axis = |plus: egui::Key, minus: egui::Key| {
                 i.key_down(plus) as i32 as f64 - i.key_down(minus) as i32 as f64
             };
@@ -221,6 +232,7 @@ impl ViewerApp {
                 i.key_pressed(egui::Key::Tab),
                 i.key_pressed(egui::Key::Space),
                 step,
+                i.key_pressed(egui::Key::K),
             )
         });
         if !input.is_idle() {
@@ -247,6 +259,32 @@ impl ViewerApp {
                 open.time.step(step);
             }
         }
+        if keyframe {
+            self.add_keyframe(ctx.pixels_per_point());
+        }
+    }
+
+    /// Adds the current view to the camera path: its pose, its vertical FOV in the view's
+    /// shape and, for a dynamic scene, the shown time over the loop (frame / timestamps).
+    fn add_keyframe(&mut self, pixels_per_point: f32) {
+        let Some(open) = &self.opened else {
+            self.status = "Open a scene to key its camera path".into();
+            return;
+        };
+        // The view in physical pixels, whatever the render resolution: its shape.
+        let size = self.view_rect.size() * pixels_per_point;
+        let [width, height] = [size.x, size.y].map(|v| v.max(0.0).round() as u32);
+        if width == 0 || height == 0 {
+            self.status = "No view to take a keyframe of yet".into();
+            return;
+        }
+        let render_time = open
+            .scene
+            .is_dynamic()
+            .then(|| open.time.frame() / open.time.count() as f64);
+        let keyframe = Keyframe::of_view(&self.camera, width, height, render_time);
+        self.path.add(keyframe, [width, height]);
+        self.status = format!("Keyframe {} added", self.path.keyframes.len());
     }
 
     fn advance_time(&mut self, ctx: &egui::Context) {
@@ -433,7 +471,7 @@ impl ViewerApp {
                 .text("speed"),
         );
         self.dirty |= fov.changed();
-        ui.label("Pose (for pano4d render --camera):");
+        let pose_label = ui.label("Pose (for pano4d render --camera):");
         let pose_line = self.camera.pose().to_line();
         ui.horizontal(|ui| {
             if ui.button("Copy").clicked() {
@@ -456,7 +494,10 @@ impl ViewerApp {
             }
         });
         ui.add(egui::Label::new(egui::RichText::new(&pose_line).monospace().small()).wrap());
-        ui.add(egui::TextEdit::singleline(&mut self.pose_text).hint_text("paste a pose line"));
+        ui.add(egui::TextEdit::singleline(&mut self.pose_text).hint_text("paste a pose line"))
+            .labelled_by(pose_label.id);
+        ui.separator();
+        self.camera_path_panel(ui);
         ui.separator();
         ui.label("Rendering");
         ui.horizontal(|ui| {
@@ -480,8 +521,89 @@ impl ViewerApp {
         ui.separator();
         ui.label(
             "W/A/S/D/Q/E move (shift: faster) · drag: look · scroll: speed (orbit: distance) · \
-             ctrl+scroll: FOV · Tab: fly/orbit · R: reset · space: play · , / .: frame step",
+             ctrl+scroll: FOV · Tab: fly/orbit · R: reset · space: play · , / .: frame step · \
+             K: keyframe",
         );
+    }
+
+    /// Keyframes, the video they make and where its `camera_path.json` goes.
+    fn camera_path_panel(&mut self, ui: &mut egui::Ui) {
+        ui.label("Camera path").on_hover_text(
+            "Keyframes of a video, saved as nerfstudio's camera_path.json: \
+             pano4d render scene.ply4d --path camera_path.json --out v.mp4",
+        );
+        let keyed = !self.path.keyframes.is_empty();
+        ui.horizontal(|ui| {
+            if ui
+                .button("Add keyframe (K)")
+                .on_hover_text("The current view (and the shown time)")
+                .clicked()
+            {
+                self.add_keyframe(ui.ctx().pixels_per_point());
+            }
+            if ui
+                .add_enabled(keyed, egui::Button::new("Remove last"))
+                .clicked()
+            {
+                self.path.keyframes.pop();
+            }
+            if ui.add_enabled(keyed, egui::Button::new("Clear")).clicked() {
+                self.path.keyframes.clear();
+            }
+        });
+        ui.label(format!("{} keyframes", self.path.keyframes.len()));
+        let timestamps = self.opened.as_ref().map_or(1, |o| o.time.count());
+        for (i, key) in self.path.keyframes.iter().enumerate() {
+            let p = key.camera.camera_to_world.w_axis;
+            let mut line = format!(
+                "{}: ({:.2}, {:.2}, {:.2}) {:.1}°",
+                i + 1,
+                p.x,
+                p.y,
+                p.z,
+                key.camera.fov_deg
+            );
+            if let Some(t) = key.camera.render_time {
+                line += &format!(" t {:.2}", t * timestamps as f64);
+            }
+            ui.label(egui::RichText::new(line).monospace().small());
+        }
+        let video = &mut self.path.video;
+        ui.horizontal(|ui| {
+            ui.add(
+                egui::DragValue::new(&mut video.seconds)
+                    .range(0.1..=3600.0)
+                    .speed(0.1)
+                    .suffix(" s"),
+            )
+            .on_hover_text("The video's length; every keyframe-to-keyframe transition as long");
+            ui.add(
+                egui::DragValue::new(&mut video.fps)
+                    .range(1.0..=240.0)
+                    .suffix(" fps"),
+            );
+        });
+        ui.horizontal(|ui| {
+            let size = 1..=16384;
+            ui.add(egui::DragValue::new(&mut video.width).range(size.clone()))
+                .on_hover_text("Render width: the view's when the first keyframe is added");
+            ui.label("×");
+            ui.add(egui::DragValue::new(&mut video.height).range(size))
+                .on_hover_text("Render height: the view's when the first keyframe is added");
+            ui.label(format!("{} frames", video.frame_count()));
+        });
+        ui.horizontal(|ui| {
+            let label = ui.label("File");
+            ui.add(egui::TextEdit::singleline(&mut self.path.file).hint_text("camera_path.json"))
+                .labelled_by(label.id);
+        });
+        let save = ui.add_enabled(
+            self.path.keyframes.len() >= 2,
+            egui::Button::new("Save camera path…"),
+        );
+        if save.on_disabled_hover_text("Needs two keyframes").clicked() {
+            self.status = self.path.save().unwrap_or_else(|e| e);
+        }
     }
 
     fn time_panel(&mut self, ui: &mut egui::Ui) {

@@ -5,7 +5,7 @@
 //! docs/design.md's: world +z up, the panorama's camera at the origin looking along +x, and the
 //! render camera in the OpenCV convention built by [`splat_core::camera::Camera::from_fov`].
 
-use glam::DVec3;
+use glam::{DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 use splat_core::camera::Camera;
 
@@ -24,6 +24,9 @@ const SPEED_PER_MEDIAN_DISTANCE: f64 = 0.2;
 pub const SUPPORTED_FRACTION: f64 = 0.3;
 /// Radians of look rotation per pixel of mouse drag.
 pub const LOOK_RADIANS_PER_PIXEL: f64 = 0.004;
+/// OpenCV camera axes (x right, y down, z forward) to OpenGL ones (x right, y up, z back),
+/// the axes of nerfstudio's `camera_to_world` (Python's `pano4d.camera.CV_TO_GL`).
+const CV_TO_GL: DMat4 = DMat4::from_diagonal(DVec4::new(1.0, -1.0, -1.0, 1.0));
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CameraMode {
@@ -254,6 +257,32 @@ impl ViewCamera {
         )
     }
 
+    /// The vertical field of view in degrees of a `width`×`height` view ([`Self::fov_deg`]
+    /// is the horizontal one).
+    pub fn vertical_fov_deg(&self, width: u32, height: u32) -> f64 {
+        2.0 * self
+            .to_camera(width, height)
+            .half_fov_tan
+            .y
+            .atan()
+            .to_degrees()
+    }
+
+    /// Camera-to-world with OpenGL camera axes (x right, y up, looking along −z), nerfstudio's
+    /// `camera_to_world`: the render camera's, as Python's `Camera.camera_to_world_gl`.
+    pub fn camera_to_world_gl(&self) -> DMat4 {
+        // The rotation does not depend on the image size.
+        let camera = self.to_camera(1, 1);
+        let to_world = camera.rotation.transpose();
+        let camera_to_world = DMat4::from_cols(
+            to_world.x_axis.extend(0.0),
+            to_world.y_axis.extend(0.0),
+            to_world.z_axis.extend(0.0),
+            self.position.extend(1.0),
+        );
+        camera_to_world * CV_TO_GL
+    }
+
     pub fn pose(&self) -> CameraPose {
         CameraPose {
             position: self.position.to_array(),
@@ -441,6 +470,40 @@ mod tests {
         let a = back.to_camera(320, 200);
         let b = cam.to_camera(320, 200);
         assert_near(a.rotation, b.rotation);
+    }
+
+    #[test]
+    fn opengl_camera_to_world_is_the_copied_pose() {
+        let mut cam = ViewCamera::panorama_viewpoint(&extent());
+        cam.position = DVec3::new(0.5, -1.25, 2.0);
+        cam.yaw = 2.0;
+        cam.pitch = -0.3;
+        let pose = CameraPose::parse(&cam.pose().to_line()).unwrap();
+        let m = cam.camera_to_world_gl();
+        // Row-major as the file holds it: the last row is exactly [0, 0, 0, 1].
+        assert_eq!(m.row(3), DVec4::W);
+        assert_eq!(m.w_axis.truncate(), DVec3::from_array(pose.position));
+        // OpenGL: the camera looks along −z; x is the image's right, level (no roll); y is
+        // the image's up, towards world +z.
+        assert_near(-m.z_axis.truncate(), DVec3::from_array(pose.forward));
+        assert_near(m.x_axis.truncate(), cam.right());
+        assert_eq!(m.x_axis.z, 0.0);
+        assert!(m.y_axis.z > 0.0);
+        assert_near(m.y_axis.truncate(), cam.right().cross(cam.forward()));
+        let rotation = DMat3::from_mat4(m);
+        assert_near(rotation.transpose() * rotation, DMat3::IDENTITY);
+        assert_near(rotation.determinant(), 1.0);
+    }
+
+    #[test]
+    fn vertical_fov_of_a_view() {
+        let cam = ViewCamera::panorama_viewpoint(&extent());
+        assert_near(cam.vertical_fov_deg(100, 100), DEFAULT_FOV_DEG);
+        let want = 2.0
+            * (40.0_f64.to_radians().tan() * 9.0 / 16.0)
+                .atan()
+                .to_degrees();
+        assert_near(cam.vertical_fov_deg(1600, 900), want);
     }
 
     #[test]

@@ -3,6 +3,8 @@
 //! wgpu device egui created.
 //!
 //! - [`camera`]: fly/orbit camera maths, pose strings, the support hint.
+//! - [`camera_path`]: keyframes into nerfstudio's `camera_path.json` (`pano4d render --path`).
+//! - [`spline`]: the Kochanek–Bartels curves nerfstudio's viewer interpolates a path with.
 //! - [`scene`]: opening files and streaming dynamic sets per timestamp.
 //! - [`stream`]: dynamic sets decoded ahead of playback on a worker thread.
 //! - [`time`]: the shown time, in frames, and how it moves: play, pause, loop, speed and
@@ -16,11 +18,13 @@
 
 pub mod app;
 pub mod camera;
+pub mod camera_path;
 pub mod edit;
 pub mod headless;
 pub mod render;
 pub mod residency;
 pub mod scene;
+pub mod spline;
 pub mod stream;
 pub mod synthetic;
 pub mod time;

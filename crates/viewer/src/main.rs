@@ -26,7 +26,9 @@ options (headless):
   --out PATH             the PNG to write
   --camera POSE          {\"position\":[x,y,z],\"forward\":[x,y,z],\"fov_deg\":f}
                          (default: the panorama's viewpoint, origin looking along +x)
-  --time SECONDS         the timestamp nearest to SECONDS (default: the first)
+  --time SECONDS         the scene at SECONDS, round the loop: a version-2 scene at
+                         that real time, others at the timestamp holding it (the last
+                         at or before it), as the window plays them (default: the first)
   --frame N              timestamp index N
   --size WxH             image size (default 1280x720)
   --background R,G,B     background colour, 0..1 each (default 0,0,0)

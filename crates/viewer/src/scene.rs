@@ -268,15 +268,6 @@ impl Scene {
             Source::Sequence(frames) => frames.iter().map(|f| vertex_count(f)).collect(),
         }
     }
-
-    /// The timestamp index nearest to `seconds`.
-    pub fn index_at(&self, seconds: f64) -> usize {
-        self.timestamps
-            .iter()
-            .enumerate()
-            .min_by(|(_, a), (_, b)| (*a - seconds).abs().total_cmp(&(*b - seconds).abs()))
-            .map_or(0, |(i, _)| i)
-    }
 }
 
 #[cfg(test)]
@@ -303,7 +294,6 @@ mod tests {
         assert_eq!(opened.static_set.len(), 2_000);
         assert_eq!(opened.dynamic_set(3).unwrap().len(), 200);
         assert!(opened.dynamic_set(4).is_err());
-        assert_eq!(opened.index_at(1e9), 3);
         assert_eq!(opened.timeline(), Timeline::Held);
         assert!(opened.spacetime_set().is_err());
 

@@ -130,6 +130,17 @@ impl TimeControl {
         }
     }
 
+    /// Moves to `seconds` on the timestamps' clock, taken round the loop: on a continuous
+    /// timeline the real time there, on a held one the timestamp holding it (the last at or
+    /// before it), as playing shows them.
+    pub fn set_seconds(&mut self, seconds: f64) {
+        let clock = (seconds - self.timestamps[0]).rem_euclid(self.loop_length());
+        match self.timeline {
+            Timeline::Held => self.hold(clock),
+            Timeline::Continuous => self.frame = clock / self.frame_period(),
+        }
+    }
+
     /// Moves to the `delta`-th timestamp from the shown time (from a time between two, the
     /// nearer of them in that direction counts as the first), wrapping around when looping;
     /// pauses playback.
@@ -192,8 +203,13 @@ impl TimeControl {
             self.clock = length - self.frame_period();
             self.playing = false;
         }
-        let now = self.timestamps[0] + self.clock;
-        // The last timestamp not after the clock.
+        self.hold(self.clock);
+    }
+
+    /// Shows the timestamp holding `clock` seconds after the first: the last not after it.
+    fn hold(&mut self, clock: f64) {
+        self.clock = clock;
+        let now = self.timestamps[0] + clock;
         let index = self
             .timestamps
             .partition_point(|&t| t <= now + 1e-9)
@@ -329,6 +345,41 @@ mod tests {
         assert!(!time.playing);
         time.toggle_play();
         assert_eq!(time.frame(), 0.0, "playing again from the end rewinds");
+    }
+
+    #[test]
+    fn a_time_in_seconds_is_a_real_time_or_the_timestamp_holding_it() {
+        let mut time = continuous(4);
+        time.set_seconds(0.15);
+        assert_near(time.frame(), 1.5);
+        assert_near(time.seconds(), 0.15);
+        time.set_seconds(0.45);
+        assert_near(time.frame(), 0.5);
+        time.set_seconds(-0.05);
+        assert_near(time.frame(), 3.5);
+
+        let mut time = held(&tenths(4));
+        time.set_seconds(0.19);
+        assert_eq!(
+            time.frame(),
+            1.0,
+            "held until the next timestamp, not the nearest"
+        );
+        // 0.3 s is timestamp 3 (stored as 3 × 0.1 = 0.30000000000000004).
+        time.set_seconds(0.3);
+        assert_eq!(time.frame(), 3.0);
+        time.set_seconds(0.45);
+        assert_eq!(time.frame(), 0.0, "round the 0.4 s loop");
+        // Playing on goes on from there.
+        time.toggle_play();
+        time.advance(0.06);
+        assert_eq!(time.frame(), 1.0);
+
+        let mut uneven = held(&[1.0, 1.5, 3.0]);
+        uneven.set_seconds(2.9);
+        assert_eq!(uneven.frame(), 1.0);
+        uneven.set_seconds(4.2); // a 3 s loop from 1.0 s: 1.2 s
+        assert_eq!(uneven.frame(), 0.0);
     }
 
     #[test]

@@ -62,24 +62,30 @@ fn headless_render_of_a_version_2_scene() {
     let dir = temp_dir("render-v2");
     let scene = dir.join("scene.ply4d");
     ply4d::write_spacetime(&scene, &synthetic::spacetime_scene(2_000, 400, 4, 0, 2)).unwrap();
-    let render = |frame: &str| {
-        let out = dir.join(format!("t{frame}.png"));
+    let render = |option: &str, value: &str| {
+        let out = dir.join(format!("{option}{value}.png"));
         let result = view()
             .arg(&scene)
-            .args(["--headless", "--size", "96x64", "--frame", frame, "--out"])
+            .args(["--headless", "--size", "96x64", option, value, "--out"])
             .arg(&out)
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&result.stderr).to_string();
         (result.status.success(), stderr, out)
     };
-    let (ok, stderr, first) = render("0");
-    assert!(ok, "{stderr}");
-    let (ok, stderr, half_way) = render("2");
-    assert!(ok, "{stderr}");
-    let [first, half_way] = [first, half_way].map(|p| image::open(p).unwrap().to_rgba8());
+    let image = |(ok, stderr, out): (bool, String, PathBuf)| {
+        assert!(ok, "{stderr}");
+        image::open(out).unwrap().to_rgba8()
+    };
+    let first = image(render("--frame", "0"));
+    let second = image(render("--frame", "1"));
+    let half_way = image(render("--frame", "2"));
     assert_ne!(first, half_way, "the ball bobs between timestamps");
-    let (ok, stderr, _) = render("4");
+    // 0.15 s at 10 fps: frame 1.5, drawn there, not at a timestamp.
+    let between = image(render("--time", "0.15"));
+    assert_ne!(between, second);
+    assert_ne!(between, half_way);
+    let (ok, stderr, _) = render("--frame", "4");
     assert!(!ok && stderr.contains("out of range"), "{stderr}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,6 +1,6 @@
-//! Play, Loop and Screenshot clicked in the real window (egui_kittest on wgpu), and the frame
-//! the window presents compared with splat-core's `Renderer::forward` through the sRGB
-//! transfer.
+//! Play, Loop, Screenshot and the camera path's keyframes clicked in the real window
+//! (egui_kittest on wgpu), and the frame the window presents compared with splat-core's
+//! `Renderer::forward` through the sRGB transfer.
 //!
 //! A test binary of its own: the screenshot is written into the current directory, which
 //! the screenshot test changes, and no other test may run beside it.
@@ -168,6 +168,106 @@ fn a_version_2_scene_plays_between_its_timestamps_at_the_speed_set() {
     harness.key_press(egui::Key::Period);
     harness.run();
     assert_eq!(harness.state().time().unwrap().frame(), 2.0);
+}
+
+/// Moves the time slider to `frame` and lets the window draw it.
+fn set_time(harness: &mut Harness<'static, ViewerApp>, frame: f64) {
+    harness
+        .get_by_role_and_label(Role::Slider, "time")
+        .set_value_accesskit(frame);
+    harness.run();
+}
+
+/// The 16 numbers of `m`, row by row, as a camera path stores a matrix.
+fn row_major(m: glam::DMat4) -> Vec<f64> {
+    m.transpose().to_cols_array().to_vec()
+}
+
+fn numbers(value: &serde_json::Value) -> Vec<f64> {
+    serde_json::from_value(value.clone()).unwrap()
+}
+
+#[track_caller]
+fn assert_close(got: &[f64], want: &[f64]) {
+    assert_eq!(got.len(), want.len());
+    for (g, w) in got.iter().zip(want) {
+        assert!((g - w).abs() < 1e-12, "{got:?} != {want:?}");
+    }
+}
+
+#[test]
+fn keyframes_from_the_key_and_the_button_save_nerfstudios_camera_path() {
+    let dir = TempDir::new("controls-path");
+    let path = dir.0.join("scene.ply4d");
+    let scene = synthetic::spacetime_scene(20_000, 2_000, TIMES as u32, 1, 11);
+    ply4d::write_spacetime(&path, &scene).unwrap();
+    let mut harness = open_path(path);
+    let file = dir.0.join("camera_path.json");
+    assert_eq!(
+        Path::new(&harness.state().camera_path().file),
+        file,
+        "saved beside the scene"
+    );
+
+    // Keyframe 1 by its key: the panorama's view, half way between timestamps 1 and 2.
+    set_time(&mut harness, 1.5);
+    let first = *harness.state().camera();
+    harness.key_press(egui::Key::K);
+    harness.run();
+    // Keyframe 2 by the button, further on (W) and at timestamp 3.
+    harness.key_down(egui::Key::W);
+    harness.run_steps(3);
+    harness.key_up(egui::Key::W);
+    set_time(&mut harness, 3.0);
+    let second = *harness.state().camera();
+    assert_ne!(first.position, second.position);
+    click(&mut harness, "Add keyframe (K)");
+    // A third, taken back.
+    click(&mut harness, "Add keyframe (K)");
+    harness.get_by_label("3 keyframes");
+    click(&mut harness, "Remove last");
+    harness.get_by_label("2 keyframes");
+    click(&mut harness, "Save camera path…");
+    assert!(harness.query_by_label_contains("Saved").is_some());
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    // The render size is the view's (one pixel a point here).
+    let rect = harness.state().view_rect();
+    let (width, height) = (rect.width().round() as u32, rect.height().round() as u32);
+    assert_eq!(json["camera_type"], "perspective");
+    assert_eq!(json["render_width"], width);
+    assert_eq!(json["render_height"], height);
+    let keyframes = json["keyframes"].as_array().unwrap();
+    assert_eq!(keyframes.len(), 2);
+    for (key, (camera, frame)) in keyframes.iter().zip([(first, 1.5), (second, 3.0)]) {
+        assert_eq!(
+            numbers(&key["matrix"]),
+            row_major(camera.camera_to_world_gl())
+        );
+        assert_eq!(key["fov"], camera.vertical_fov_deg(width, height));
+        assert_eq!(key["render_time"], frame / TIMES as f64);
+    }
+    // The video: 4 s at 30 fps, from the first keyframe to the second along a straight line.
+    let frames = json["camera_path"].as_array().unwrap();
+    assert_eq!(json["seconds"], 4.0);
+    assert_eq!(json["fps"], 30.0);
+    assert_eq!(frames.len(), 120);
+    assert_close(
+        &numbers(&frames[0]["camera_to_world"]),
+        &row_major(first.camera_to_world_gl()),
+    );
+    assert_close(
+        &numbers(&frames[119]["camera_to_world"]),
+        &row_major(second.camera_to_world_gl()),
+    );
+    assert_eq!(frames[0]["render_time"], 1.5 / TIMES as f64);
+    assert_eq!(frames[119]["render_time"], 3.0 / TIMES as f64);
+    let x = |i: usize| numbers(&frames[i]["camera_to_world"])[3];
+    let step = (second.position.x - first.position.x) / 119.0;
+    for i in [1, 40, 77, 118] {
+        assert!((x(i) - first.position.x - step * i as f64).abs() < 1e-9);
+    }
 }
 
 /// sRGB (0..1) of a display value: what egui decodes the view's texels to before

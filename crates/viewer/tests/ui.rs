@@ -267,7 +267,8 @@ fn pasted_pose_moves_the_camera_to_a_real_scene() {
         forward: [-1.0, 0.0, 0.0],
         fov_deg: 70.0,
     };
-    let field = harness.get_by_role(Role::TextInput);
+    let field =
+        harness.get_by_role_and_label(Role::TextInput, "Pose (for pano4d render --camera):");
     field.focus();
     field.type_text(&pose.to_line());
     harness.run();
