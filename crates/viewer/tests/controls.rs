@@ -268,7 +268,45 @@ fn keyframes_from_the_key_and_the_button_save_nerfstudios_camera_path() {
     for i in [1, 40, 77, 118] {
         assert!((x(i) - first.position.x - step * i as f64).abs() < 1e-9);
     }
+
+    // The round trip: pano4d's reader takes the file as `pano4d render --path` does, and
+    // its cameras at the two keyframes are the poses "Copy pose" gives `--camera`, at the
+    // keyframes' times (the venv of `make setup`, as edit_ui.rs).
+    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
+    let poses = [first.pose().to_line(), second.pose().to_line()];
+    let read = std::process::Command::new(&python)
+        .args([
+            "-c",
+            ROUND_TRIP,
+            file.to_str().unwrap(),
+            &poses[0],
+            &poses[1],
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("{} (run `make setup`): {e}", python.display()));
+    assert!(
+        read.status.success(),
+        "{}",
+        String::from_utf8_lossy(&read.stderr)
+    );
 }
+
+/// Reads a camera_path.json (argv 1) with pano4d and checks its first and last cameras
+/// against two `--camera` poses (argv 2, 3) and its times against the keyframes' (1.5, 3).
+const ROUND_TRIP: &str = "
+import sys
+from pathlib import Path
+import torch
+from pano4d import camera_paths, nerfstudio_path
+path = nerfstudio_path.read(Path(sys.argv[1]))
+cams = path.cameras()
+for i, pose in ((0, sys.argv[2]), (len(cams) - 1, sys.argv[3])):
+    want = camera_paths.parse_camera(pose, path.width, path.height)
+    assert torch.allclose(cams[i].world_to_cam, want.world_to_cam, atol=1e-9), (i, cams[i], want)
+    assert torch.allclose(cams[i].K, want.K, rtol=1e-9, atol=0), (i, cams[i].K, want.K)
+times = path.scene_times(4, 10.0)
+assert abs(times[0] - 1.5) < 1e-12 and abs(times[-1] - 3.0) < 1e-12, times
+";
 
 /// sRGB (0..1) of a display value: what egui decodes the view's texels to before
 /// compositing, and encodes again for the window.
