@@ -257,6 +257,7 @@ def test_an_equirectangular_path_makes_a_360_video_from_its_positions(tmp_path: 
     ("extra", "message"),
     [
         (["--width", "64"], "--width: "),
+        (["--time", "1"], "--time: "),
         (["--fps", "24"], "--fps: "),
         (["--projection", "equirect"], "is a perspective camera path"),
     ],

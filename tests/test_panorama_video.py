@@ -175,6 +175,20 @@ def test_time_follows_the_scene_rate_in_every_video(blue_then_red: Path, tmp_pat
         assert max(red[:4]) < -0.3 and min(red[4:]) > 0.3, (video.name, red)
 
 
+def test_a_video_starts_at_the_time_asked_for(blue_then_red: Path, tmp_path: Path) -> None:
+    """`--time 1` starts both kinds of video at timestamp 1 (red), and the loop brings
+    timestamp 0 (blue) after it; without it they start at 0 (the test above)."""
+    turn, pano = tmp_path / "turn.mp4", tmp_path / "pano.mp4"
+    args = ("--fps", "8", "--width", "64", "--height", "32", "--time", "1")
+    ran = pano4d("render", blue_then_red, "-o", turn, "--path", "turntable", "--frames", "8", *args)
+    assert ran.returncode == 0, ran.stderr
+    ran = pano4d("render", blue_then_red, "-o", pano, "--projection", "equirect", *args)
+    assert ran.returncode == 0, ran.stderr
+    for video in (turn, pano):
+        red = [frame[..., 0].mean() - frame[..., 2].mean() for frame in decoded(video)]
+        assert min(red[:4]) > 0.3 and max(red[4:]) < -0.3, (video.name, red)
+
+
 def test_a_version_2_video_moves_between_the_scene_frames(
     blue_to_red: Path, blue_then_red: Path, tmp_path: Path
 ) -> None:

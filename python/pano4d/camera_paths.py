@@ -88,11 +88,12 @@ def scene_antialiased(scene: Path) -> bool:
     return scene.suffix == ".ply4d" and ply4d.open(scene).antialiased
 
 
-def video_times(scene: Path, frames: int, fps: float) -> list[float]:
-    """The scene time (frames) each of ``frames`` video frames at ``fps`` shows: the scene
-    plays at its own rate, looping, whatever the video's (``ply4d.playback_time``)."""
+def video_times(scene: Path, frames: int, fps: float, start: float = 0.0) -> list[float]:
+    """The scene time (frames) each of ``frames`` video frames at ``fps`` shows, from time
+    ``start``: the scene plays at its own rate, looping, whatever the video's
+    (``ply4d.playback_time``)."""
     _, scene_fps = scene_clock(scene)
-    return [ply4d.playback_time(i, fps, scene_fps) for i in range(frames)]
+    return [start + ply4d.playback_time(i, fps, scene_fps) for i in range(frames)]
 
 
 def gaussians_at(scene: Path, times: Iterable[float]) -> Iterator[Gaussians]:
@@ -187,12 +188,14 @@ def render_path(
     height: int,
     frames: int,
     fps: float,
+    start: float = 0.0,
     backend: str = "wgpu",
 ) -> None:
     """A video along a built-in camera path (``path_cameras``); time follows the scene's
-    own rate (``video_times``)."""
+    own rate from ``start`` (``video_times``)."""
     cams = path_cameras(kind, width, height, frames, path_radius(scene))
-    images.write_video(out, path_frames(scene, cams, video_times(scene, frames, fps), backend), fps)
+    times = video_times(scene, frames, fps, start)
+    images.write_video(out, path_frames(scene, cams, times, backend), fps)
 
 
 def render_camera_path(

@@ -340,13 +340,14 @@ def render_command(
         ),
     ] = None,
     time: Annotated[
-        float,
+        float | None,
         typer.Option(
             "--time",
             "-t",
-            help="Scene time of a still in frames, any real ≥ 0, looping (.ply4d; a .ply: 0).",
+            help="Scene time in frames, any real ≥ 0, looping: a still's, or where a video "
+            "starts (.ply4d; a .ply: 0).",
         ),
-    ] = 0.0,
+    ] = None,
     width: Annotated[
         int | None,
         typer.Option(help="Image width (default 1280; 4096 with --projection equirect)."),
@@ -411,8 +412,8 @@ def render_command(
     if ipd is not None and stereo is None:
         fail(f"--ipd {ipd} sets the stereo eye distance: add --stereo top-bottom")
     if path is not None and path.endswith(".json"):
-        given = {"--camera": camera, "--width": width, "--height": height, "--frames": frames,
-                 "--fps": fps}  # fmt: skip
+        given = {"--camera": camera, "--time": time, "--width": width, "--height": height,
+                 "--frames": frames, "--fps": fps}  # fmt: skip
         for name, value in given.items():
             if value is not None:
                 fail(f"{name}: {path} sets the video's cameras, size, length and rate")
@@ -423,6 +424,7 @@ def render_command(
     if path_transform is not None:
         fail(f"--path-transform {path_transform} maps a camera_path.json: add --path FILE.json")
     fps = 30.0 if fps is None else fps
+    time = 0.0 if time is None else time
     if projection == "equirect":
         # Defaults: 4096 wide; a mono frame 2:1, a stereo frame square (two 2:1 eyes).
         w = width if width is not None else 4096 if stereo or height is None else 2 * height
@@ -443,7 +445,7 @@ def render_command(
         camera_paths.render_still(scene, cam, time, out, backend=backend)
     else:
         count = 120 if frames is None else frames
-        camera_paths.render_path(scene, path, out, w, h, count, fps, backend=backend)
+        camera_paths.render_path(scene, path, out, w, h, count, fps, time, backend=backend)
     console.print(f"wrote {out}")
 
 

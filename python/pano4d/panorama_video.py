@@ -439,8 +439,8 @@ def render_360(
 ) -> Frame360:
     """Write ``out``: a 360° still (.png, .jpg or .exr; the scene at ``time``, in frames) or
     an MP4 of ``frames`` frames at ``fps`` (default: one loop of the scene's time), whose
-    time follows the scene's own rate (``camera_paths.video_times``), tagged as
-    spherical. Progress goes to ``bars``, one step a piece.
+    time starts at ``time`` and follows the scene's own rate (``camera_paths.video_times``),
+    tagged as spherical. Progress goes to ``bars``, one step a piece.
     Returns the frame as drawn (a stereo frame with its IPD resolved)."""
     video = out.suffix.lower() == ".mp4"
     if path is not None and not video:
@@ -458,8 +458,8 @@ def render_360(
         images.write_image(out, still)
         return frame
 
-    write_360_video(scene, out, frame, eyes, camera_paths.video_times(scene, count, fps), fps,
-                    backend, task.advance)  # fmt: skip
+    times = camera_paths.video_times(scene, count, fps, start=time)
+    write_360_video(scene, out, frame, eyes, times, fps, backend, task.advance)
     return frame
 
 
