@@ -11,7 +11,7 @@ from __future__ import annotations
 import io
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 from PIL import Image
@@ -30,6 +30,19 @@ def chromium_missing() -> str | None:
     except ImportError:
         return "selenium is missing: pip install -e '.[dev]'"
     return None
+
+
+def module_browser(width: int, height: int) -> Iterator[Browser]:
+    """A browser for one test module's fixture, closed after it. A missing browser fails the
+    test: `make setup` installs it, so its absence is no reason to skip."""
+    import pytest  # the tests' alone: bench/web.py opens its Browser itself
+
+    missing = chromium_missing()
+    if missing:
+        pytest.fail(missing)
+    b = Browser(width, height)
+    yield b
+    b.close()
 
 
 class Browser:

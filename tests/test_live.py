@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from browser import Browser, chromium_missing
+from browser import Browser, module_browser
 from pano4d_process import ONE_THREAD, TINY, tiny_scene
 from sphere_problem import sphere_problem
 from typer.testing import CliRunner
@@ -157,12 +157,7 @@ def lines_until(stream: Any, marker: str, into: list[str]) -> None:
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
-    missing = chromium_missing()
-    if missing:
-        pytest.fail(missing)  # `make setup` installs it: a missing browser is a failure here
-    b = Browser(WIDTH, HEIGHT)
-    yield b
-    b.close()
+    yield from module_browser(WIDTH, HEIGHT)
 
 
 @pytest.fixture(scope="module")

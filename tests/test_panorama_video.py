@@ -161,10 +161,15 @@ def test_pieces_join_without_a_seam_and_stay_within_a_piece(monkeypatch) -> None
     assert (panorama_video.draw(spheres, cam, "wgpu") - whole).abs().max() < 1e-5
 
 
-def test_time_follows_the_scene_rate_in_every_video(blue_then_red: Path, tmp_path: Path) -> None:
-    """A 2 fps scene in 8 fps videos: four frames a timestamp (before the fix, one)."""
+@pytest.mark.parametrize("start", [None, "1"])
+def test_time_follows_the_scene_rate_in_every_video(
+    blue_then_red: Path, tmp_path: Path, start: str | None
+) -> None:
+    """A 2 fps scene in 8 fps videos: four frames a timestamp (before the fix, one), from
+    timestamp 0 (blue), or with `--time 1` from timestamp 1 (red), the loop bringing the
+    other after it."""
     turn, pano = tmp_path / "turn.mp4", tmp_path / "pano.mp4"
-    args = ("--fps", "8", "--width", "64", "--height", "32")
+    args = ("--fps", "8", "--width", "64", "--height", "32", *(("--time", start) if start else ()))
     ran = pano4d("render", blue_then_red, "-o", turn, "--path", "turntable", "--frames", "8", *args)
     assert ran.returncode == 0, ran.stderr
     ran = pano4d("render", blue_then_red, "-o", pano, "--projection", "equirect", *args)
@@ -172,21 +177,8 @@ def test_time_follows_the_scene_rate_in_every_video(blue_then_red: Path, tmp_pat
     for video in (turn, pano):
         red = [frame[..., 0].mean() - frame[..., 2].mean() for frame in decoded(video)]
         assert len(red) == 8  # the 360° video is one loop of the scene: 2 × 0.5 s at 8 fps
-        assert max(red[:4]) < -0.3 and min(red[4:]) > 0.3, (video.name, red)
-
-
-def test_a_video_starts_at_the_time_asked_for(blue_then_red: Path, tmp_path: Path) -> None:
-    """`--time 1` starts both kinds of video at timestamp 1 (red), and the loop brings
-    timestamp 0 (blue) after it; without it they start at 0 (the test above)."""
-    turn, pano = tmp_path / "turn.mp4", tmp_path / "pano.mp4"
-    args = ("--fps", "8", "--width", "64", "--height", "32", "--time", "1")
-    ran = pano4d("render", blue_then_red, "-o", turn, "--path", "turntable", "--frames", "8", *args)
-    assert ran.returncode == 0, ran.stderr
-    ran = pano4d("render", blue_then_red, "-o", pano, "--projection", "equirect", *args)
-    assert ran.returncode == 0, ran.stderr
-    for video in (turn, pano):
-        red = [frame[..., 0].mean() - frame[..., 2].mean() for frame in decoded(video)]
-        assert min(red[:4]) > 0.3 and max(red[4:]) < -0.3, (video.name, red)
+        blue_half, red_half = (red[:4], red[4:]) if start is None else (red[4:], red[:4])
+        assert max(blue_half) < -0.3 and min(red_half) > 0.3, (video.name, start, red)
 
 
 def test_a_version_2_video_moves_between_the_scene_frames(

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from browser import Browser, chromium_missing, psnr
+from browser import Browser, module_browser, psnr
 from pano4d_process import error_line, pano4d
 
 from pano4d import ply4d, web
@@ -94,12 +94,7 @@ def scene_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
-    missing = chromium_missing()
-    if missing:
-        pytest.fail(missing)  # `make setup` installs it: a missing browser is a failure here
-    b = Browser(WIDTH, HEIGHT)
-    yield b
-    b.close()
+    yield from module_browser(WIDTH, HEIGHT)
 
 
 def reference(scene_file: Path, t: int, size: tuple[int, int]) -> np.ndarray:
