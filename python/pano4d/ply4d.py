@@ -92,6 +92,15 @@ def loop_time(t: float, num_times: int) -> float:
     return float(t % num_times)
 
 
+def _shown_time(t: float, num_times: int, evaluated: bool) -> float:
+    """The time whose Gaussians a scene of ``num_times`` timestamps shows at time ``t``
+    (``loop_time``): that time itself where the dynamic set is ``evaluated`` at any time (a
+    spacetime set, version 2), the timestamp it holds (⌊…⌋) where a set is stored per
+    timestamp (version 1)."""
+    time = loop_time(t, num_times)
+    return time if evaluated else float(math.floor(time))
+
+
 # A playback time this close to a whole frame is that frame: the rates' rounding must not
 # show a version-1 scene's timestamp before it (0.3 fps / 0.1 fps is 2.9999999999999996).
 WHOLE_FRAME_SLACK = 1e-9
@@ -186,13 +195,13 @@ class Scene4D:
         return len(self.timestamps)
 
     def dynamic_at(self, t: float) -> Gaussians:
-        """The dynamic Gaussians at time ``t`` (frames, any real ≥ 0, taken modulo the loop:
-        ``loop_time``): the spacetime set evaluated there, or the set of the timestamp it
-        holds (⌊t⌋)."""
-        time = loop_time(t, self.num_times)
+        """The dynamic Gaussians at time ``t`` (frames, any real ≥ 0, ``_shown_time``): the
+        spacetime set evaluated there, or the set of the timestamp it holds (⌊t⌋)."""
+        evaluated = isinstance(self.dynamic, SpacetimeGaussians)
+        time = _shown_time(t, self.num_times, evaluated)
         if isinstance(self.dynamic, SpacetimeGaussians):
             return self.dynamic.at(time)
-        return self.dynamic[math.floor(time)]
+        return self.dynamic[int(time)]
 
     def at(self, t: float) -> Gaussians:
         """All Gaussians visible at time ``t`` (``dynamic_at``): static followed by dynamic."""
@@ -380,8 +389,7 @@ class Ply4dFile:
         ``t`` within the loop (``loop_time``) for version 2, the timestamp it holds (⌊…⌋)
         for version 1. Two times show the same Gaussians when their shown times are equal,
         so a playback reads a version-1 set once for every time that shows it."""
-        time = loop_time(t, self.num_times)
-        return time if self.version == 2 else float(math.floor(time))
+        return _shown_time(t, self.num_times, evaluated=self.version == 2)
 
     def dynamic(self, t: float) -> Gaussians:
         """The dynamic Gaussians at time ``t`` (``shown_time``): version 2, the spacetime set
