@@ -18,8 +18,7 @@ ground-truth cameras (displaced 1 % and 5 % of the median depth):
   viewers) drawn classic, against the scene drawn antialiased, at the training views.
 
     .venv/bin/python bench/antialias.py [--kinds landscape room] [--presets draft balanced]
-        [--modes classic antialiased antialiased+densities] [--balanced-iterations 200]
-        [--width 1024] [--frames 2] [--json bench/out/antialias.json]
+        [--balanced-iterations 200] [--width 1024] [--frames 2] [--json bench/out/antialias.json]
 
 ``--balanced-iterations`` runs balanced at that many optimisation steps (200: a tenth).
 """
@@ -57,13 +56,7 @@ from pano4d.train import run_train
 OUT = Path(__file__).resolve().parent / "out"
 DENSITIES = (1, 2, 4)  # 1/k of the training views' pixel density
 FILTER_3D = 0.2  # Mip-Splatting's 3D filter variance, in training pixels²
-# What each mode overrides; --modes picks them (classic and antialiased by default). The
-# third trains the static stage on views at ½ and ¼ density as well (density_halvings).
-MODES: dict[str, dict[str, Any]] = {
-    "classic": {"antialiased": False},
-    "antialiased": {"antialiased": True},
-    "antialiased+densities": {"antialiased": True, "density_halvings": 2},
-}
+MODES = {"classic": False, "antialiased": True}
 
 
 def resized(camera: Camera, width: int, height: int) -> Camera:
@@ -173,13 +166,12 @@ def train_pair(kind: str, preset: str, args: argparse.Namespace) -> list[dict[st
     world = SCENE_KINDS[kind](args.seed, args.frames)  # the ground truth's ray caster
     views = read_gt_views(root / "panorama.png")
     rows = []
-    for mode in args.modes:
-        overrides: dict[str, Any] = dict(MODES[mode])
-        antialiased = overrides["antialiased"]
+    for mode, antialiased in MODES.items():
         output = root / f"out_{preset}_{mode}"
         if output.exists():
             shutil.rmtree(output)
         shutil.copytree(root / "gt" / "frames", output / "animate" / "frames")
+        overrides: dict[str, Any] = {"antialiased": antialiased}
         if preset == "balanced" and args.balanced_iterations:
             overrides["gaussian_iterations"] = args.balanced_iterations
         cfg = load_config(root / "scene.yaml").model_copy(
@@ -203,7 +195,7 @@ def train_pair(kind: str, preset: str, args: argparse.Namespace) -> list[dict[st
         }  # fmt: skip
         print(summary_line(row), flush=True)
         rows.append(row)
-        if mode == "antialiased":  # with Mip-Splatting's 3D filter added after training
+        if antialiased:  # the 2D filter with Mip-Splatting's 3D filter added, after training
             focal = focal_length(cfg.lift.fov_deg, knobs["view_size"])
             position = torch.tensor(scene.camera["position"], dtype=torch.float64)
             filtered = replace(
@@ -251,9 +243,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--kinds", nargs="+", default=["landscape", "room"])
     parser.add_argument("--presets", nargs="+", default=["draft", "balanced"])
-    parser.add_argument(
-        "--modes", nargs="+", choices=list(MODES), default=["classic", "antialiased"]
-    )
     parser.add_argument("--balanced-iterations", type=int, default=200)
     parser.add_argument("--width", type=int, default=1024)
     parser.add_argument("--frames", type=int, default=2)

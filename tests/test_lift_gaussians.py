@@ -25,7 +25,6 @@ from pano4d.lift.initial import (
     spacetime_start,
 )
 from pano4d.lift.losses import moved_camera, pearson_loss, sem_alpha
-from pano4d.lift.pipeline import at_densities
 from pano4d.lift.random_dinov2 import random_feature_model
 from pano4d.lift.torch_trainer import GaussianTrainer
 from pano4d.lift.trainer import Knobs, TrainViews
@@ -309,27 +308,3 @@ def test_the_initial_spacing_counts_working_pixels_whatever_the_input_width(tmp_
         sets = initial_sets(inputs, torch.full(inputs.moving.shape, 5.0))
         counts[width] = sets.points
     assert counts[128] == counts[512] == len(init_sphere(72, 2))
-
-
-def test_views_at_lower_densities_are_each_view_averaged_over_blocks() -> None:
-    camera = view_layout(20, 80.0, 64)[3]
-    gen = torch.Generator().manual_seed(7)
-    target, weight, depth = (torch.rand(1, 64, 64, c, generator=gen) for c in (3, 1, 1))
-    views = TrainViews([camera], target, weight[..., 0], depth[..., 0])
-    assert at_densities(views, 0) is views
-    lower = at_densities(views, 2)
-    assert [(c.width, c.height) for c in lower.cameras] == [(64, 64), (32, 32), (16, 16)]
-    # A point lands in pixel i of the 1/k view where it lands in pixels k·i … k·i + k − 1 of
-    # the view (pixel centres at i + 0.5: the focal length and principal point divide by k).
-    points = camera.unproject(torch.rand(50, 2, generator=gen) * 64, torch.full((50,), 3.0))
-    full_uv = camera.project(points)[0]
-    for level, k in ((1, 2), (2, 4)):
-        assert torch.allclose(lower.cameras[level].project(points)[0], full_uv / k, atol=1e-9)
-        blocks = target[0].reshape(64 // k, k, 64 // k, k, 3).mean((1, 3))
-        assert torch.allclose(lower.targets[level], blocks, atol=1e-6)
-        assert torch.allclose(
-            lower.weights[level], weight[0, ..., 0].reshape(64 // k, k, 64 // k, k).mean((1, 3))
-        )
-        assert torch.allclose(
-            lower.depth[level], depth[0, ..., 0].reshape(64 // k, k, 64 // k, k).mean((1, 3))
-        )

@@ -150,13 +150,6 @@ class StageKnobs(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
     view_size: int = Field(ge=16)  # pixels per side of each perspective view (a tile at least)
-    # The static stage also trains on every view at ½, ¼, … of its pixel density, against
-    # its target averaged over 2×2, 4×4, … blocks (this many halvings; 0: the views' own
-    # density alone), so the scene drawn at fewer pixels shows what a supersampled render
-    # would (lift/pipeline.at_densities). 2 in every preset: at draft it took 0.24–0.39 dB
-    # off the loss at ¼ density and none at the training size, in fewer seconds
-    # (bench/RESULTS.md, "Anti-aliased at any resolution").
-    density_halvings: int = Field(2, ge=0, le=3)
     init_stride: int = Field(ge=1)  # working-panorama pixels between initial Gaussians
     align_iterations: int = Field(ge=1)  # depth alignment (per-view scale + shift) steps
     gaussian_iterations: int = Field(ge=1)  # optimisation steps per timestamp
@@ -170,7 +163,9 @@ class StageKnobs(BaseModel):
     # sequence (warm-started from t − 1); "spacetime" fits one set for every timestamp, each
     # Gaussian with Fourier terms of its colour and position and an opacity over time
     # (pano4d/spacetime.py), stored once in a version-2 .ply4d.
-    dynamic_model: Annotated[Literal["per_timestamp", "spacetime"], DYNAMIC_ONLY] = "per_timestamp"
+    dynamic_model: Annotated[Literal["per_timestamp", "spacetime"], DYNAMIC_ONLY] = (
+        "per_timestamp"
+    )
     # The spacetime set's Fourier terms per quantity (0: constant in time).
     colour_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(2, ge=0, le=8)
     position_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(1, ge=0, le=8)

@@ -190,7 +190,9 @@ def moving_region(
     return grow(moving_in_video(frames, regions[0, 0] > 0))
 
 
-def prepare(cfg: SceneConfig, frames_dir: Path, render_backend: str, trainer: str) -> LiftInputs:
+def prepare(
+    cfg: SceneConfig, frames_dir: Path, render_backend: str, trainer: str
+) -> LiftInputs:
     """The frames at the working resolution and what moves in them (``moving_region``).
 
     ``frames_dir`` holds the animating phase's frames at any size (``animation_frames``:
@@ -389,39 +391,6 @@ def views_of_frame(
     return TrainViews(cams, targets.to(d), weights.to(d), z.to(d))
 
 
-def at_densities(views: TrainViews, halvings: int) -> TrainViews:
-    """``views`` and, for k = 2, 4, … (``halvings`` of them), each view again at 1/k of its
-    pixel density: the camera's focal length and size divided by k (pixel k·i … k·i + k − 1
-    becomes pixel i) and its target, weight and depth averaged over k×k blocks — what a
-    view of that size should show, the supersampled view.
-
-    Why: a scene trained at one density is drawn at fewer pixels (a thumbnail, a wide field
-    of view) by blending many small Gaussians into each pixel, which the training never
-    saw; views at lower densities train that blend against the supersampled targets
-    (Mip-Splatting's multi-scale setting; bench/RESULTS.md, "Anti-aliased at any
-    resolution")."""
-    if halvings == 0:
-        return views
-    cameras, targets = list(views.cameras), list(views.targets)
-    weights, depth = list(views.weights), list(views.depth)
-    for level in range(1, halvings + 1):
-        k = 2**level
-        for i, camera in enumerate(views.cameras):
-            scale = torch.tensor([1 / k, 1 / k, 1.0], dtype=camera.K.dtype)[:, None]
-            cameras.append(
-                Camera(camera.K * scale, camera.world_to_cam, camera.width // k, camera.height // k)
-            )
-            targets.append(_blocks(views.targets[i], k))
-            weights.append(_blocks(views.weights[i][..., None], k)[..., 0])
-            depth.append(_blocks(views.depth[i][..., None], k)[..., 0])
-    return TrainViews(cameras, targets, weights, depth)
-
-
-def _blocks(image: torch.Tensor, k: int) -> torch.Tensor:
-    """(h, w, c) averaged over k×k blocks (the rows and columns past a whole block dropped)."""
-    return F.avg_pool2d(image.permute(2, 0, 1)[None], k)[0].permute(1, 2, 0)
-
-
 def run_trainer(
     trainer: Trainer,
     kind: str,
@@ -526,7 +495,6 @@ def fit_static(
         view_depth0,
         lambda c: (inputs.moving_in_view(c) < 0.5).to(torch.float32),
     )
-    views = at_densities(views, knobs.density_halvings)
     trainer = make_trainer(
         inputs.trainer,
         initial,
