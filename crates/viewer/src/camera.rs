@@ -351,6 +351,15 @@ mod tests {
         }
     }
 
+    /// A camera away from the panorama's viewpoint, turned and tilted.
+    fn moved_camera() -> ViewCamera {
+        let mut cam = ViewCamera::panorama_viewpoint(&extent());
+        cam.position = DVec3::new(0.5, -1.25, 2.0);
+        cam.yaw = 2.0;
+        cam.pitch = -0.3;
+        cam
+    }
+
     #[test]
     fn panorama_viewpoint_looks_along_x_from_origin() {
         let cam = ViewCamera::panorama_viewpoint(&extent());
@@ -454,10 +463,7 @@ mod tests {
 
     #[test]
     fn pose_round_trips_through_its_line() {
-        let mut cam = ViewCamera::panorama_viewpoint(&extent());
-        cam.position = DVec3::new(0.5, -1.25, 2.0);
-        cam.yaw = 2.0;
-        cam.pitch = -0.3;
+        let mut cam = moved_camera();
         cam.fov_deg = 65.0;
         let line = cam.pose().to_line();
         assert!(!line.contains('\n'));
@@ -474,10 +480,7 @@ mod tests {
 
     #[test]
     fn opengl_camera_to_world_is_the_copied_pose() {
-        let mut cam = ViewCamera::panorama_viewpoint(&extent());
-        cam.position = DVec3::new(0.5, -1.25, 2.0);
-        cam.yaw = 2.0;
-        cam.pitch = -0.3;
+        let cam = moved_camera();
         let pose = CameraPose::parse(&cam.pose().to_line()).unwrap();
         let m = cam.camera_to_world_gl();
         // Row-major as the file holds it: the last row is exactly [0, 0, 0, 1].

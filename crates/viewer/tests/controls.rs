@@ -35,6 +35,14 @@ fn open_viewer(dir: &Path) -> Harness<'static, ViewerApp> {
     open_path(path)
 }
 
+/// The viewer on a version-2 scene of TIMES timestamps, written into `dir`.
+fn open_spacetime_viewer(dir: &Path) -> Harness<'static, ViewerApp> {
+    let path = dir.join("scene.ply4d");
+    let scene = synthetic::spacetime_scene(20_000, 2_000, TIMES as u32, 1, 11);
+    ply4d::write_spacetime(&path, &scene).unwrap();
+    open_path(path)
+}
+
 fn open_path(path: PathBuf) -> Harness<'static, ViewerApp> {
     let egui_wgpu::WgpuSetup::CreateNew(setup) = egui_kittest::wgpu::default_wgpu_setup() else {
         panic!("egui_kittest's default set-up creates its own device");
@@ -106,10 +114,7 @@ fn play_pause_and_loop_move_time_as_their_labels_say() {
 #[test]
 fn a_version_2_scene_plays_between_its_timestamps_at_the_speed_set() {
     let dir = TempDir::new("controls-v2");
-    let path = dir.0.join("scene.ply4d");
-    let scene = synthetic::spacetime_scene(20_000, 2_000, TIMES as u32, 1, 11);
-    ply4d::write_spacetime(&path, &scene).unwrap();
-    let mut harness = open_path(path);
+    let mut harness = open_spacetime_viewer(&dir.0);
     // The speed control is reachable by its label; at half speed a 0.05 s step of the
     // display moves a 10 fps scene by a quarter of a frame.
     harness.get_by_label("speed ×").set_value_accesskit(0.5);
@@ -198,10 +203,7 @@ fn assert_close(got: &[f64], want: &[f64]) {
 #[test]
 fn keyframes_from_the_key_and_the_button_save_nerfstudios_camera_path() {
     let dir = TempDir::new("controls-path");
-    let path = dir.0.join("scene.ply4d");
-    let scene = synthetic::spacetime_scene(20_000, 2_000, TIMES as u32, 1, 11);
-    ply4d::write_spacetime(&path, &scene).unwrap();
-    let mut harness = open_path(path);
+    let mut harness = open_spacetime_viewer(&dir.0);
     let file = dir.0.join("camera_path.json");
     assert_eq!(
         Path::new(&harness.state().camera_path().file),
