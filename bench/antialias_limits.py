@@ -2,9 +2,10 @@
 the loss `bench/antialias.py` measures, taken apart on a scene it trained, and the same
 question asked of a flat wall of Gaussians with no training at all.
 
-For the trained scene (``--kind``, ``--preset``: `bench/antialias.py`'s output), at its
-ground-truth cameras, drawn directly at ½ and ¼ density and drawn at full density and
-box-downsampled (the supersampled render), both against the supersampled ground truth:
+For the trained scene (``--kind``, ``--preset``: `bench/antialias.py`'s output at its
+default width, frames and seed), at its ground-truth cameras, drawn directly at ½ and ¼
+density and drawn at full density and box-downsampled (the supersampled render), both
+against the supersampled ground truth:
 
 * ``coverage``: the loss again with the direct render's coverage set to the supersampled
   render's (colour / alpha × the box of the full render's alpha): what blending to a
