@@ -80,8 +80,9 @@ def trained_scene(kind: str, preset: str) -> dict[str, Any]:
     root = OUT / "antialias" / f"{kind}_w1024_l2_s0"
     output = root / f"out_{preset}_antialiased"
     if not (output / "scene.ply4d").is_file():
-        sys.exit(f"error: {output}/scene.ply4d: run bench/antialias.py --kinds {kind} "
-                 f"--presets {preset} first")  # fmt: skip
+        print(f"error: {output}/scene.ply4d: no such scene; run bench/antialias.py --kinds "
+              f"{kind} --presets {preset} first", file=sys.stderr)  # fmt: skip
+        sys.exit(2)
     scene = ply4d.read(output / "scene.ply4d")
     world = SCENE_KINDS[kind](0, 2)
     views = read_gt_views(root / "panorama.png")
