@@ -156,8 +156,13 @@ def export_fidelity(output: Path, scene: ply4d.Scene4D, knobs: dict, cfg: Any) -
     return 10 * math.log10(1 / mse) if mse > 0 else math.inf
 
 
+def scene_root(kind: str, width: int, frames: int, seed: int) -> Path:
+    """Where a kind's synthetic scene and its trained pairs live."""
+    return OUT / "antialias" / f"{kind}_w{width}_l{frames}_s{seed}"
+
+
 def train_pair(kind: str, preset: str, args: argparse.Namespace) -> list[dict[str, Any]]:
-    root = OUT / "antialias" / f"{kind}_w{args.width}_l{args.frames}_s{args.seed}"
+    root = scene_root(kind, args.width, args.frames, args.seed)
     if not (root / "scene.yaml").is_file():
         made = synth.make_scene(
             args.seed, args.width, args.width // 2, args.frames, views=8, kind=kind

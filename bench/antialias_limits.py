@@ -41,7 +41,7 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from antialias import OUT, box, full_density_size, mean, resized
+from antialias import OUT, box, full_density_size, mean, resized, scene_root
 
 from pano4d import ply4d
 from pano4d.camera import Camera
@@ -77,7 +77,7 @@ def gaussian_sampled(fine: torch.Tensor, step: int, variance: float) -> torch.Te
 
 
 def trained_scene(kind: str, preset: str) -> dict[str, Any]:
-    root = OUT / "antialias" / f"{kind}_w1024_l2_s0"
+    root = scene_root(kind, 1024, 2, 0)  # antialias.py's defaults
     output = root / f"out_{preset}_antialiased"
     if not (output / "scene.ply4d").is_file():
         print(f"error: {output}/scene.ply4d: no such scene; run bench/antialias.py --kinds "
@@ -89,42 +89,51 @@ def trained_scene(kind: str, preset: str) -> dict[str, Any]:
     knobs = json.loads((output / "metrics.json").read_text())["knobs"]
     fov = load_config(root / "scene.yaml").lift.fov_deg
     side = full_density_size(views[0]["camera"], knobs, fov)
-    rows: dict[str, Any] = {}
-    for k in (2, 4):
-        direct, supersampled, coverage_set, shape = [], [], [], []
-        excess = {"edge": 0.0, "rest": 0.0}
-        pixels = {"edge": 0, "rest": 0}
-        for v in views:
-            t = min(int(v["time"]), scene.num_times - 1)
-            g = scene.at(t)
-            full = resized(v["camera"], side, side)
+    ks = (2, 4)
+    direct: dict[int, list[float]] = {k: [] for k in ks}
+    supersampled: dict[int, list[float]] = {k: [] for k in ks}
+    coverage_set: dict[int, list[float]] = {k: [] for k in ks}
+    shape: dict[int, list[float]] = {k: [] for k in ks}
+    excess = {k: {"edge": 0.0, "rest": 0.0} for k in ks}
+    pixels = {k: {"edge": 0, "rest": 0} for k in ks}
+    for v in views:  # what does not depend on k, drawn and ray-cast once a view
+        t = min(int(v["time"]), scene.num_times - 1)
+        g = scene.at(t)
+        full = resized(v["camera"], side, side)
+        with torch.no_grad():
+            drawn = render(g, full, antialiased=True)
+        truth = render_view(world, full, t)[0]
+        fine = render_view(world, resized(v["camera"], side * FINER, side * FINER), t)[0]
+        drawn_rgb = drawn.rgb.clamp(0, 1).cpu()
+        log_depth = drawn.depth.cpu().clamp(min=1e-3).log()
+        for k in ks:
             with torch.no_grad():
                 small = render(g, resized(v["camera"], side // k, side // k), antialiased=True)
-                drawn = render(g, full, antialiased=True)
-            ideal = box(render_view(world, full, t)[0], k)
+            ideal = box(truth, k)
             rgb = small.rgb.clamp(0, 1).cpu()
-            box_rgb = box(drawn.rgb.clamp(0, 1).cpu(), k)
-            box_alpha = box(drawn.alpha.cpu()[..., None].expand(-1, -1, 3).contiguous(), k)
+            box_rgb = box(drawn_rgb, k)
+            box_alpha = box(drawn.alpha.cpu()[..., None], k)
             covered = rgb / small.alpha.cpu().clamp(min=1e-6)[..., None] * box_alpha
-            direct.append(psnr(rgb, ideal))
-            supersampled.append(psnr(box_rgb, ideal))
-            coverage_set.append(psnr(covered.clamp(0, 1), ideal))
-            fine = render_view(world, resized(v["camera"], side * FINER, side * FINER), t)[0]
-            shape.append(psnr(gaussian_sampled(fine, k * FINER, FILTER_VARIANCE),
-                              box(fine, k * FINER)))  # fmt: skip
-            log_depth = drawn.depth.cpu().clamp(min=1e-3).log().unfold(0, k, k).unfold(1, k, k)
-            edge = (log_depth.amax((-1, -2)) - log_depth.amin((-1, -2))) > EDGE_LOG_DEPTH
+            direct[k].append(psnr(rgb, ideal))
+            supersampled[k].append(psnr(box_rgb, ideal))
+            coverage_set[k].append(psnr(covered.clamp(0, 1), ideal))
+            shape[k].append(psnr(gaussian_sampled(fine, k * FINER, FILTER_VARIANCE),
+                                 box(fine, k * FINER)))  # fmt: skip
+            blocks = log_depth.unfold(0, k, k).unfold(1, k, k)
+            edge = (blocks.amax((-1, -2)) - blocks.amin((-1, -2))) > EDGE_LOG_DEPTH
             more = ((rgb - ideal) ** 2).mean(-1) - ((box_rgb - ideal) ** 2).mean(-1)
             for name, where in (("edge", edge), ("rest", ~edge)):
-                excess[name] += float(more[where].sum())
-                pixels[name] += int(where.sum())
-        total = sum(excess.values())
+                excess[k][name] += float(more[where].sum())
+                pixels[k][name] += int(where.sum())
+    rows: dict[str, Any] = {}
+    for k in ks:
+        total = sum(excess[k].values())
         rows[f"1/{k}"] = {
-            "loss_db": mean(supersampled) - mean(direct),
-            "loss_with_coverage_set_db": mean(supersampled) - mean(coverage_set),
-            "gaussian_filter_vs_box_db": mean(shape),
-            "edge_pixel_share": pixels["edge"] / sum(pixels.values()),
-            "edge_excess_share": excess["edge"] / total if total else math.nan,
+            "loss_db": mean(supersampled[k]) - mean(direct[k]),
+            "loss_with_coverage_set_db": mean(supersampled[k]) - mean(coverage_set[k]),
+            "gaussian_filter_vs_box_db": mean(shape[k]),
+            "edge_pixel_share": pixels[k]["edge"] / sum(pixels[k].values()),
+            "edge_excess_share": excess[k]["edge"] / total if total else math.nan,
         }  # fmt: skip
         r = rows[f"1/{k}"]
         print(f"{kind} {preset} 1/{k}: loss {r['loss_db']:.2f} dB, "
