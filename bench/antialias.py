@@ -88,33 +88,38 @@ def mean(values: list[float]) -> float:
 def aliasing(scene: ply4d.Scene4D, world: Any, views: list[dict], side: int) -> dict[str, Any]:
     """Per density: PSNR drawn directly and supersampled (both against ground truth made
     the same way) and their difference, mean over ``views``."""
-    rows: dict[str, Any] = {}
-    for k in DENSITIES:
-        direct, supersampled, direct_vs_box, self_consistent = [], [], [], []
-        for v in views:
-            t = min(int(v["time"]), scene.num_times - 1)
-            g = scene.at(t)
-            full = resized(v["camera"], side, side)
+    keys = ("direct", "supersampled", "direct_vs_box", "self_consistent")
+    scores: dict[int, dict[str, list[float]]] = {k: {key: [] for key in keys} for k in DENSITIES}
+    for v in views:
+        t = min(int(v["time"]), scene.num_times - 1)
+        g = scene.at(t)
+        # The full-density render and truth, once a view: every density box-filters them.
+        full = resized(v["camera"], side, side)
+        with torch.no_grad():
+            drawn_full = render(g, full, antialiased=scene.antialiased).rgb.clamp(0, 1).cpu()
+        truth_full = render_view(world, full, t)[0]
+        for k in DENSITIES:
             small = resized(v["camera"], side // k, side // k)
             with torch.no_grad():
                 drawn_small = render(g, small, antialiased=scene.antialiased).rgb.clamp(0, 1)
-                drawn_full = render(g, full, antialiased=scene.antialiased).rgb.clamp(0, 1)
             truth_small = render_view(world, small, t)[0]
-            truth_full = render_view(world, full, t)[0]
             ideal = box(truth_full, k)
-            supersampled_render = box(drawn_full.cpu(), k)
-            direct.append(psnr(drawn_small.cpu(), truth_small))
-            supersampled.append(psnr(supersampled_render, ideal))
-            direct_vs_box.append(psnr(drawn_small.cpu(), ideal))
-            self_consistent.append(psnr(drawn_small.cpu(), supersampled_render))
-        d, s = mean(direct), mean(supersampled)
+            supersampled_render = box(drawn_full, k)
+            at = scores[k]
+            at["direct"].append(psnr(drawn_small.cpu(), truth_small))
+            at["supersampled"].append(psnr(supersampled_render, ideal))
+            at["direct_vs_box"].append(psnr(drawn_small.cpu(), ideal))
+            at["self_consistent"].append(psnr(drawn_small.cpu(), supersampled_render))
+    rows: dict[str, Any] = {}
+    for k, at in scores.items():
+        d, s = mean(at["direct"]), mean(at["supersampled"])
         rows[f"1/{k}"] = {
             "size": side // k, "direct_db": d, "supersampled_db": s, "aliasing_db": s - d,
             # against one truth, the supersampled one (what a pixel of that size should show)
-            "direct_vs_supersampled_truth_db": mean(direct_vs_box),
-            "aliasing_vs_supersampled_truth_db": s - mean(direct_vs_box),
+            "direct_vs_supersampled_truth_db": mean(at["direct_vs_box"]),
+            "aliasing_vs_supersampled_truth_db": s - mean(at["direct_vs_box"]),
             # no truth at all: the direct render against the scene's own supersampled render
-            "direct_vs_own_supersampled_db": mean(self_consistent),
+            "direct_vs_own_supersampled_db": mean(at["self_consistent"]),
         }  # fmt: skip
     return rows
 

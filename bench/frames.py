@@ -13,6 +13,9 @@ region's temporal error and flicker beside the truth's own; and the bytes of the
 dynamic sections. The lake (no ground
 truth) is timed with the real animator; with ``--flow`` the synthetic kinds are animated by
 it too (frame 0 under the kind's mask), to compare two animating paths on the same truth.
+``--standin`` adds issue #38's stand-in for a large real panorama with much of it moving:
+bench/working_frames.py's (the lake resampled to 6144×3072, a box over its water and sky),
+timed as the lake is.
 
 Variants: ``after`` is this tree; ``--base REV`` adds ``before``, REV's code in a git
 worktree under bench/out/frames/ (its own extension built there when REV's Rust differs);
@@ -23,7 +26,7 @@ bench/out/frames.json and bench/out/frames.png (moving-region PSNR against minut
 lifting, a colour per variant, a point per case, a case's points joined).
 
     .venv/bin/python bench/frames.py [--base REV] [--kinds landscape room] [--frames 2 7 14]
-        [--width 2048] [--preset draft] [--lake] [--balanced-step 14]
+        [--width 2048] [--preset draft] [--lake] [--standin] [--balanced-step 14]
         [--overrides JSON] [--setting NAME=JSON ...] [--json bench/out/frames.json] [--keep]
 
 ``--balanced-step L``: balanced at 1024 wide with L frames and ``--balanced-iterations``
@@ -57,6 +60,9 @@ import torch  # noqa: E402
 
 LAKE = Path(os.environ.get("PANO4D_SHARED", REPO.parent / "shared")) / "data" / "pano_lake.jpg"
 LAKE_BOX = [1950, 1050, 4000, 1350]  # README's "A real panorama": the open water
+STANDIN_WIDTH = 6144  # the stand-in's size (bench/working_frames.py makes it)
+# The cases without ground truth: the real animator, timed only
+REAL_KINDS = ("lake", "standin")
 CAMERAS_PER_FRAME = 4
 CAMERA_SIZE = 128
 CAMERA_FOV_DEG = 60.0
@@ -78,7 +84,7 @@ def train_case(case: dict[str, Any]) -> None:
     if case["overrides"]:
         update["overrides"] = case["overrides"]
     animate = {"frames": case["frames"]}
-    if case["kind"] != "lake":
+    if case["kind"] not in REAL_KINDS:
         root = Path(case["scene"]).parent
         if case.get("flow"):  # the flow animator on frame 0 under the kind's mask
             animate["backend"] = "flow"
@@ -320,7 +326,7 @@ def measure(variant: Variant, case: dict[str, Any], keep: bool) -> dict[str, Any
         "gaussians": metrics["gaussians"],
     }
     row["dynamic_bytes"] = dynamic_bytes(output / "scene.ply4d")
-    if case["kind"] != "lake":
+    if case["kind"] not in REAL_KINDS:
         from pano4d import ply4d
 
         scene = ply4d.read(output / "scene.ply4d")
@@ -407,6 +413,15 @@ def cases(args: argparse.Namespace) -> list[dict[str, Any]]:
             out.append({"name": f"lake draft L{frames}", "kind": "lake",
                         "scene": str(lake_scene(frames)), "preset": "draft", "frames": frames,
                         "seed": 0, "overrides": overrides})  # fmt: skip
+    if args.standin:
+        from working_frames import scene as stand_in_scene
+
+        for frames in args.frames:
+            folder = OUT / "frames" / "scenes" / f"standin_l{frames}"
+            scene = stand_in_scene(folder, STANDIN_WIDTH, frames)
+            out.append({"name": f"standin draft L{frames}", "kind": "standin",
+                        "scene": str(scene), "preset": "draft", "frames": frames,
+                        "seed": 0, "overrides": overrides})  # fmt: skip
     return out
 
 
@@ -420,6 +435,8 @@ def main() -> None:
     parser.add_argument("--preset", default="draft")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--lake", action="store_true", help="also the lake (real animator)")
+    parser.add_argument("--standin", action="store_true",
+                        help="also the lake at 6144x3072, its water and sky moving")
     parser.add_argument("--flow", action="store_true",
                         help="synthetic kinds animated by flow from frame 0 under their mask "
                         "(moving-region PSNR then against a truth flow does not make)")  # fmt: skip

@@ -227,7 +227,8 @@ def test_unknown_override_suggests_the_knob(scene_dir: Path) -> None:
 
 def test_a_knob_of_words_takes_one_of_them(scene_dir: Path) -> None:
     message = load_error(scene_dir, MINIMAL + "overrides: {dynamic_model: spacetim}\n")
-    assert "'dynamic_model' expects 'per_timestamp' or 'spacetime', got 'spacetim'" in message
+    expected = "'dynamic_model' expects 'per_timestamp', 'spacetime' or 'tracked', got 'spacetim'"
+    assert expected in message
     cfg = load_config(write_yaml(scene_dir, MINIMAL + "overrides: {dynamic_model: spacetime}\n"))
     assert cfg.resolved_preset().dynamic_model == "spacetime"
 

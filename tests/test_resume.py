@@ -19,7 +19,9 @@ import torch
 from pano4d_process import pano4d, tiny_scene
 
 from pano4d import ply4d
+from pano4d.gaussians import Gaussians
 from pano4d.images import read_image
+from pano4d.spacetime import SpacetimeGaussians
 from pano4d.train import KILL_AT_ENV
 
 SIGKILLED = -9
@@ -131,6 +133,45 @@ def test_the_spacetime_stage_killed_inside_resumes_there_and_ends_as_if_never_ki
     assert_same_scene(*runs)
     static = [ply4d.open(f / "output" / "scene.ply4d").static() for f in (reference, runs[0])]
     assert torch.equal(static[0].means, static[1].means)  # the knob keeps the static stage
+
+
+def test_the_tracked_stage_killed_inside_resumes_and_passes_through_its_frames(
+    reference: Path,
+) -> None:
+    # The per-timestamp sequence with one set whose positions and colours alone follow the
+    # frames, stored as one version-2 set: resumed as the sequence is, and with one harmonic
+    # for 3 frames the stored set passes through every frame's pose the sequence kept.
+    runs = []
+    for name, kill_at in (("tracked", None), ("tracked-killed", "dynamic:9")):
+        folder = reference.with_name(name)
+        shutil.copytree(reference.with_name("pristine"), folder)
+        yaml = folder / "scene.yaml"
+        knobs = "dynamic_model: tracked, colour_harmonics: 1, position_harmonics: 1, "
+        yaml.write_text(yaml.read_text().replace("overrides: {", "overrides: {" + knobs))
+        if kill_at is not None:
+            assert train(folder, kill_at) == SIGKILLED
+            everything_reads_back(folder / "output")
+        assert train(folder) == 0
+        runs.append(folder)
+    assert metrics(runs[1])["resumed_at"]["dynamic"] == {"t": 0, "step": 8}
+    assert ply4d.open(runs[0] / "output" / "scene.ply4d").version == 2
+    assert metrics(runs[0])["gaussians"]["dynamic_model"] == "tracked"
+    assert_same_scene(*runs)
+    checkpoint = torch.load(runs[0] / "output" / "checkpoints" / "dynamic.pt", weights_only=False)
+    poses = [Gaussians.from_numpy(g) for g in checkpoint["done"]]
+    stored = ply4d.read(runs[0] / "output" / "scene.ply4d").dynamic
+    assert isinstance(stored, SpacetimeGaussians)
+    for t, pose in enumerate(poses):
+        for name in ("log_scales", "quats", "opacity_logits"):  # frame 0's throughout
+            assert torch.equal(pose.tensors()[name], poses[0].tensors()[name]), (t, name)
+        got = stored.at(t)
+        assert (got.means - pose.means).abs().max() < 1e-4 * pose.means.abs().max(), t
+        assert (got.sh[:, 0] - pose.sh[:, 0]).abs().max() < 1e-4, t
+    assert not torch.equal(poses[1].means, poses[0].means)  # the positions did follow
+    # every frame's optimisation in losses.json, each having stored the one set
+    losses = json.loads((runs[0] / "output" / "losses.json").read_text())
+    names = [o["name"] for o in losses["optimisations"]]
+    assert names == ["static", *(f"dynamic t={t}" for t in range(len(poses)))]
 
 
 def test_a_config_change_discards_exactly_the_stages_it_affects(reference: Path) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -217,3 +218,80 @@ def test_the_loop_closes(model: TimeModel) -> None:
     for t in {0, p // 2, p - 1}:
         assert_close(s.at(t + p), s.at(t), f"frame {t} + one loop")
         assert_close(s.at(t - 3 * p), s.at(t), f"frame {t} − three loops")
+
+
+# --- a tracked set's poses as one set --------------------------------------------------
+
+
+def tracked_frames(n: int, degree: int, period: int, seed: int) -> list[Gaussians]:
+    """``period`` poses of one set of ``n`` Gaussians, as the tracked stage leaves them:
+    frame 0's scales, rotations and opacities throughout; means from 0.1 to 10⁴ (the depths
+    a panorama holds) moving by up to a percent of their distance, colours by up to 0.3."""
+    gen = torch.Generator().manual_seed(seed)
+
+    def r(*shape: int) -> torch.Tensor:
+        return torch.randn(*shape, generator=gen)
+
+    k = sh_coeffs_for_degree(degree)
+    depth = torch.logspace(-1, 4, n)[:, None]
+    first = Gaussians(
+        torch.nn.functional.normalize(r(n, 3), dim=-1) * depth, r(n, 3), r(n, 4), r(n), r(n, k, 3)
+    )
+    return [first] + [
+        replace(first, means=first.means + r(n, 3) * 0.01 * depth, sh=first.sh + r(n, k, 3) * 0.3)
+        for _ in range(1, period)
+    ]
+
+
+@pytest.mark.parametrize("period", [2, 3, 7, 14, 16])
+def test_a_tracked_set_passes_through_every_frame(period: int) -> None:
+    # With ⌊period / 2⌋ harmonics the Fourier terms hold any sequence of poses exactly.
+    frames = tracked_frames(64, 1, period, seed=period)
+    h = period // 2
+    one = SpacetimeGaussians.through_frames(TimeModel(period, h, h), frames)
+    for t, want in enumerate(frames):
+        got = one.at(t)
+        scale = want.means.abs().clamp(min=1.0)  # float32 at 10⁴: relative
+        assert ((got.means - want.means).abs() / scale).max() < 1e-5, f"means at frame {t}"
+        assert (got.sh[:, 0] - want.sh[:, 0]).abs().max() < 1e-5, f"colour at frame {t}"
+        for name in ("log_scales", "quats"):
+            assert torch.equal(got.tensors()[name], want.tensors()[name]), (name, t)
+        # present throughout: the opacity is frame 0's to float32 rounding
+        assert (got.opacity_logits - want.opacity_logits).abs().max() < 1e-4, t
+    # the higher bands, held constant, are their mean over the frames
+    rest = torch.stack([f.sh[:, 1:] for f in frames]).mean(dim=0)
+    assert torch.allclose(one.canonical.sh[:, 1:], rest, atol=1e-6)
+
+
+def test_fewer_harmonics_keep_the_slowest_waves() -> None:
+    # A pose sequence of one slow wave and one fast: two harmonics of 14 frames keep the
+    # slow one exactly and drop the fast one.
+    period, n = 14, 8
+    frames = tracked_frames(n, 0, period, seed=3)
+    first = frames[0]
+    u = [2 * math.pi * t / period for t in range(period)]
+    slow = [math.cos(x) for x in u]
+    fast = [math.sin(5 * x) for x in u]
+    poses = [
+        Gaussians(first.means + slow[t] + 0.5 * fast[t], first.log_scales, first.quats,
+                  first.opacity_logits, first.sh)
+        for t in range(period)
+    ]  # fmt: skip
+    one = SpacetimeGaussians.through_frames(TimeModel(period, 2, 2), poses)
+    for t in range(period):
+        want = first.means + slow[t]
+        assert ((one.at(t).means - want).abs() / want.abs().clamp(min=1.0)).max() < 1e-5, t
+
+
+def test_through_frames_names_what_is_wrong() -> None:
+    frames = tracked_frames(5, 0, 4, seed=0)
+    with pytest.raises(ValueError, match="4 frames make one loop, got 3"):
+        SpacetimeGaussians.through_frames(TimeModel(4, 2, 2), frames[:3])
+    with pytest.raises(ValueError, match="one set of Gaussians"):
+        SpacetimeGaussians.through_frames(TimeModel(4, 2, 2), [*frames[:3], frames[3][:4]])
+
+
+def test_an_empty_tracked_set_is_an_empty_spacetime_set() -> None:
+    empty = tracked_frames(0, 0, 3, seed=0)
+    one = SpacetimeGaussians.through_frames(TimeModel(3, 1, 1), empty)
+    assert len(one) == 0 and len(one.at(1.5)) == 0

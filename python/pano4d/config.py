@@ -162,11 +162,16 @@ class StageKnobs(BaseModel):
     # How the dynamic stage models time: "per_timestamp" fits one set per timestamp in
     # sequence (warm-started from t − 1); "spacetime" fits one set for every timestamp, each
     # Gaussian with Fourier terms of its colour and position and an opacity over time
-    # (pano4d/spacetime.py), stored once in a version-2 .ply4d.
-    dynamic_model: Annotated[Literal["per_timestamp", "spacetime"], DYNAMIC_ONLY] = (
+    # (pano4d/spacetime.py), stored once in a version-2 .ply4d; "tracked" runs the
+    # per-timestamp sequence with one set whose positions and colours alone follow the
+    # frames, then stores it as a spacetime set through its poses (the sequence's time,
+    # near its quality, a spacetime set's bytes: bench/RESULTS.md, "One dynamic set").
+    dynamic_model: Annotated[Literal["per_timestamp", "spacetime", "tracked"], DYNAMIC_ONLY] = (
         "per_timestamp"
     )
-    # The spacetime set's Fourier terms per quantity (0: constant in time).
+    # The spacetime set's Fourier terms per quantity (0: constant in time). A tracked set
+    # passes through every frame with ⌊frames / 2⌋ of each (7 for 14 frames); fewer store
+    # less and smooth the motion.
     colour_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(2, ge=0, le=8)
     position_harmonics: Annotated[int, DYNAMIC_ONLY] = Field(1, ge=0, le=8)
     # The spacetime stage's steps per step of the static stage (gaussian_iterations): one
@@ -405,7 +410,8 @@ class SceneConfig(_Section):
             if typing.get_origin(expected) is Literal:  # one of some words
                 choices = typing.get_args(expected)
                 if value not in choices:
-                    words = " or ".join(repr(c) for c in choices)
+                    *others, last = (repr(c) for c in choices)
+                    words = f"{', '.join(others)} or {last}" if others else last
                     problems.append(f"'{key}' expects {words}, got {shown}")
             elif type(value) is not expected and not (expected is float and type(value) is int):
                 problems.append(f"'{key}' expects {_TYPE_WORDS[expected]}, got {shown}")

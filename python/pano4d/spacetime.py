@@ -24,7 +24,7 @@ adjoint in WGSL). The `.ply4d` version 2 stores a set in this form (docs/ply4d.m
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -167,6 +167,49 @@ class SpacetimeGaussians:
             zeros(n, 2 * model.colour_harmonics, 3),
             zeros(n, 2 * model.position_harmonics, 3),
         )
+
+    @staticmethod
+    def through_frames(model: TimeModel, frames: list[Gaussians]) -> SpacetimeGaussians:
+        """One set that passes through ``frames``: the same Gaussians (same count and order)
+        posed at each frame of the loop, of which only the means and colours differ, as the
+        tracked stage leaves them (``lift.pipeline.fit_tracked``).
+
+        The means and the SH DC over the frames are fitted by least squares with the model's
+        Fourier terms; with harmonics ⌊period / 2⌋ (at most 8) the fit passes through every
+        frame exactly, fewer keep the slowest waves. Scale, rotation and opacity are frame
+        0's; the higher SH bands, which the form holds constant, are their mean over the
+        frames. Present throughout: a width of 1000 periods, at which the opacity at every
+        time is frame 0's to float32 rounding (``still``'s 10 periods, a start for training,
+        dim it by up to 0.1 % of a logit)."""
+        if len(frames) != model.period:
+            raise ValueError(f"{model.period} frames make one loop, got {len(frames)}")
+        counts = {len(g) for g in frames}
+        if len(counts) != 1:
+            raise ValueError(f"the frames must pose one set of Gaussians, got counts {counts}")
+
+        def fitted(values: torch.Tensor, harmonics: int) -> tuple[torch.Tensor, torch.Tensor]:
+            """(frames, N, 3) → the constant (N, 3) and the terms (N, 2·harmonics, 3)."""
+            basis = torch.stack(
+                [torch.cat([torch.ones(1, dtype=torch.float64), model.basis(t, harmonics)])
+                 for t in range(model.period)]
+            ).to(values.device)  # fmt: skip
+            # The pseudo-inverse: the minimum-norm least-squares solution, as sin(period/2 · u)
+            # is 0 at every frame (and an empty set is no problem).
+            solved = torch.linalg.pinv(basis) @ values.double().reshape(model.period, -1)
+            solved = solved.reshape(1 + 2 * harmonics, -1, 3).to(values.dtype)
+            return solved[0], solved[1:].permute(1, 0, 2).contiguous()
+
+        first = frames[0]
+        means, position_terms = fitted(
+            torch.stack([g.means for g in frames]), model.position_harmonics
+        )
+        dc, colour_terms = fitted(torch.stack([g.sh[:, 0] for g in frames]), model.colour_harmonics)
+        rest = torch.stack([g.sh[:, 1:] for g in frames]).mean(dim=0)
+        sh = torch.cat([dc[:, None], rest], dim=1)
+        canonical = Gaussians(means, first.log_scales, first.quats, first.opacity_logits, sh)
+        width = means.new_full((len(canonical),), math.log(1000.0 * model.period))
+        still = SpacetimeGaussians.still(model, canonical, log_width=width)
+        return replace(still, colour_terms=colour_terms, position_terms=position_terms)
 
     @staticmethod
     def cat(sets: list[SpacetimeGaussians]) -> SpacetimeGaussians:

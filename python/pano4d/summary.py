@@ -41,7 +41,7 @@ def run_table(metrics: dict[str, Any], output: Path, title: str = "pano4d train"
     counts = metrics.get("gaussians", {})
     dynamic = counts.get("dynamic", [])
     stored = f"{counts.get('stored', 0):,} stored: {counts.get('static', 0):,} static once, "
-    if counts.get("dynamic_model") == "spacetime":  # one set for every timestamp
+    if counts.get("dynamic_model", "per_timestamp") != "per_timestamp":  # one set for all
         stored += f"{sum(dynamic):,} dynamic once for all {counts['timestamps']} timestamps"
     else:
         per_time = f"{min(dynamic):,}" if dynamic else "0"

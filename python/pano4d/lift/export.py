@@ -108,7 +108,10 @@ def export(lifted: Lifted, on_step: StepHook | None = None) -> dict[str, Any]:
         columns = len(test)
     write_contact_sheet(out / "contact.png", tiles, columns, labels)
     wrote()
-    stored = [len(static.gaussians), *dynamic_counts(scene)]
+    # A one-set scene (spacetime, tracked) stored the same set after every optimisation.
+    one_set = isinstance(scene.dynamic, SpacetimeGaussians)
+    dynamic_stored = [len(scene.dynamic)] * len(dynamic.logs) if one_set else dynamic_counts(scene)
+    stored = [len(static.gaussians), *dynamic_stored]
     write_diagnosis(out, list(zip([static.log, *dynamic.logs], stored, strict=False)))
     wrote()
     fit = training_fit(inputs, scene)
@@ -295,7 +298,8 @@ def run_metrics(
             "static": n_static,
             "dynamic": n_dynamic,
             "timestamps": scene.num_times,
-            # "spacetime": one set, "dynamic" its count; "per_timestamp": a count per timestamp
+            # "spacetime", "tracked": one set, "dynamic" its count; "per_timestamp": a count
+            # per timestamp
             "dynamic_model": inputs.knobs.dynamic_model,
             "stored": stored,
             "initial_points": initial.points,

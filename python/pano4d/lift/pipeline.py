@@ -18,6 +18,9 @@ after a kill skips what is done and resumes an optimisation from its last checkp
                         ``dynamic_model: spacetime``, ``fit_spacetime``: one set for every
                         timestamp, each Gaussian with functions of time
                         (``pano4d.spacetime``), optimised once on (view, time) pairs;
+                        or, with ``dynamic_model: tracked``, ``fit_tracked``: the
+                        per-timestamp loop with one set whose positions and colours
+                        alone follow the frames, stored as one spacetime set;
 then ``lift.export`` writes scene.ply4d, preview.mp4, contact.png and metrics.json, and
 each optimisation's ``TrainLog`` (``lift.diagnosis``: loss terms, densify-and-prune counts,
 kept in the stage checkpoints with the trainer) as densify.jsonl, losses.json and loss.png.
@@ -32,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -536,7 +539,7 @@ def fit_static(
 @dataclass(frozen=True)
 class DynamicSets:
     # One set per timestamp (dynamic_model "per_timestamp"), or one set with functions of
-    # time for every timestamp ("spacetime").
+    # time for every timestamp ("spacetime", "tracked").
     gaussians: list[Gaussians] | SpacetimeGaussians
     seconds: float
     # Seconds per step when a step renders the whole static set and the dynamic set in
@@ -603,7 +606,12 @@ def fit_dynamic(
     bars: Bars,
     on_step: StepHook | None,
     on_snapshot: SnapshotHook | None = None,
+    tracked: bool = False,
 ) -> DynamicSets:
+    """Per timestamp, the dynamic set warm-started from t − 1's (its colours moved by the
+    frame's change), optimised against the frozen static set in the views that see it.
+    ``tracked``: after frame 0 only the positions and colours learn, so that the sets are
+    one set posed at every frame (``fit_tracked``)."""
     state = checkpoints.load("dynamic") or {"done": [], "seconds": 0.0, "logs": []}
     done = [Gaussians.from_numpy(d, inputs.device) for d in state["done"]]
     logs = [TrainLog.from_dict(d) for d in state["logs"]]  # the one in progress last
@@ -670,6 +678,9 @@ def fit_dynamic(
         # A later timestamp starts from t − 1's set, densified where the region needed it:
         # densifying it again would compound over the frames.
         stage = stage.model_copy(update={"densify": stage.densify and t == 0})
+        if tracked and t > 0:  # scale, rotation and opacity stay frame 0's
+            frozen = {"lr_scale": 0.0, "lr_rotation": 0.0, "lr_opacity": 0.0}
+            stage = stage.model_copy(update=frozen)
         trainer = make_trainer(
             inputs.trainer,
             dynamic,
@@ -713,6 +724,35 @@ def fit_dynamic(
     stage = trainer_knobs(inputs.knobs, full, budget, median_depth, cams, inputs.frames.shape[2])
     step = whole_scene_step(inputs, static, done[t], views, stage, features)
     return DynamicSets(done, spent, step, logs)
+
+
+def fit_tracked(
+    inputs: LiftInputs,
+    static: Gaussians,
+    initial: Gaussians,
+    view_depth: torch.Tensor,
+    median_depth: float,
+    checkpoints: Checkpoints,
+    bars: Bars,
+    on_step: StepHook | None,
+    on_snapshot: SnapshotHook | None = None,
+) -> DynamicSets:
+    """One dynamic set followed through the frames, as Dynamic 3D Gaussians fit theirs
+    online: ``fit_dynamic``'s loop (frame after frame, each warm-started from the one
+    before) with only the positions and colours learning after frame 0, then its poses over
+    the loop fitted by the spacetime form's Fourier terms
+    (``SpacetimeGaussians.through_frames``), stored once as a version-2 set. The frame by
+    frame fit is what the (view, time) pairs of ``fit_spacetime`` fall short of
+    (bench/RESULTS.md, "One dynamic set")."""
+    knobs = inputs.knobs
+    frames = fit_dynamic(
+        inputs, static, initial, view_depth, median_depth, checkpoints, bars, on_step,
+        on_snapshot, tracked=True,
+    )  # fmt: skip
+    assert isinstance(frames.gaussians, list)
+    model = TimeModel(len(inputs.frames), knobs.colour_harmonics, knobs.position_harmonics)
+    one_set = SpacetimeGaussians.through_frames(model, frames.gaussians)
+    return replace(frames, gaussians=one_set)
 
 
 def fit_spacetime(
@@ -890,7 +930,9 @@ def lift(
         inputs, initial.static, view_depth.depth[0], median, checkpoints, bars, on_step,
         on_snapshot,
     )  # fmt: skip
-    fit = fit_spacetime if inputs.knobs.dynamic_model == "spacetime" else fit_dynamic
+    fit = {"per_timestamp": fit_dynamic, "spacetime": fit_spacetime, "tracked": fit_tracked}[
+        inputs.knobs.dynamic_model
+    ]
     dynamic = fit(
         inputs, static.gaussians, initial.dynamic, view_depth.depth, median, checkpoints, bars,
         on_step, on_snapshot,
