@@ -108,25 +108,30 @@ def test_a_run_killed_inside_a_stage_resumes_there_and_ends_as_if_never_killed(
     assert_same_scene(reference, folder)
 
 
+def trained_and_killed(reference: Path, name: str, knobs: str) -> list[Path]:
+    """The pristine inputs with ``knobs`` added to their overrides, trained twice: without
+    interruption (NAME/) and killed inside the dynamic stage, then rerun (NAME-killed/)."""
+    runs = []
+    for folder, kill_at in ((name, None), (f"{name}-killed", "dynamic:9")):
+        run = reference.with_name(folder)
+        shutil.copytree(reference.with_name("pristine"), run)
+        yaml = run / "scene.yaml"
+        yaml.write_text(yaml.read_text().replace("overrides: {", f"overrides: {{{knobs}, "))
+        if kill_at is not None:
+            assert train(run, kill_at) == SIGKILLED
+            everything_reads_back(run / "output")
+        assert train(run) == 0
+        runs.append(run)
+    return runs
+
+
 def test_the_spacetime_stage_killed_inside_resumes_there_and_ends_as_if_never_killed(
     reference: Path,
 ) -> None:
     # One dynamic set for every timestamp: its optimisation checkpoints like the static
     # set's (the (view, time) generator's state in it), and a rerun after a kill ends with
     # the same version-2 scene as a run never killed. The static set is the reference's.
-    runs = []
-    for name, kill_at in (("spacetime", None), ("spacetime-killed", "dynamic:9")):
-        folder = reference.with_name(name)
-        shutil.copytree(reference.with_name("pristine"), folder)
-        yaml = folder / "scene.yaml"
-        yaml.write_text(
-            yaml.read_text().replace("overrides: {", "overrides: {dynamic_model: spacetime, ")
-        )
-        if kill_at is not None:
-            assert train(folder, kill_at) == SIGKILLED
-            everything_reads_back(folder / "output")
-        assert train(folder) == 0
-        runs.append(folder)
+    runs = trained_and_killed(reference, "spacetime", "dynamic_model: spacetime")
     assert metrics(runs[1])["resumed_at"]["dynamic"] == {"step": 8}
     assert ply4d.open(runs[0] / "output" / "scene.ply4d").version == 2
     assert metrics(runs[0])["gaussians"]["dynamic_model"] == "spacetime"
@@ -141,18 +146,8 @@ def test_the_tracked_stage_killed_inside_resumes_and_passes_through_its_frames(
     # The per-timestamp sequence with one set whose positions and colours alone follow the
     # frames, stored as one version-2 set: resumed as the sequence is, and with one harmonic
     # for 3 frames the stored set passes through every frame's pose the sequence kept.
-    runs = []
-    for name, kill_at in (("tracked", None), ("tracked-killed", "dynamic:9")):
-        folder = reference.with_name(name)
-        shutil.copytree(reference.with_name("pristine"), folder)
-        yaml = folder / "scene.yaml"
-        knobs = "dynamic_model: tracked, colour_harmonics: 1, position_harmonics: 1, "
-        yaml.write_text(yaml.read_text().replace("overrides: {", "overrides: {" + knobs))
-        if kill_at is not None:
-            assert train(folder, kill_at) == SIGKILLED
-            everything_reads_back(folder / "output")
-        assert train(folder) == 0
-        runs.append(folder)
+    knobs = "dynamic_model: tracked, colour_harmonics: 1, position_harmonics: 1"
+    runs = trained_and_killed(reference, "tracked", knobs)
     assert metrics(runs[1])["resumed_at"]["dynamic"] == {"t": 0, "step": 8}
     assert ply4d.open(runs[0] / "output" / "scene.ply4d").version == 2
     assert metrics(runs[0])["gaussians"]["dynamic_model"] == "tracked"
