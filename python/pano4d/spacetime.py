@@ -64,6 +64,25 @@ class TimeModel:
             dtype=torch.float64,
         )
 
+    def fitted(self, series: torch.Tensor, harmonics: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """A series over the loop's frames, (period, N, C), in Fourier terms by least
+        squares: the constant (N, C) and the terms (N, 2·harmonics, C), float64. For evenly
+        spaced samples of one period that is the discrete transform: the mean, and twice the
+        mean projection on each term; once at the Nyquist rate (its sine is zero), none above
+        it (the frames cannot tell those terms apart from lower ones). With ⌊period / 2⌋
+        harmonics the terms pass through every frame."""
+        count = series.shape[0]
+        if count != self.period:
+            raise ValueError(f"{count} frames for a loop of {self.period}")
+        values = series.to(torch.float64)
+        basis = torch.stack([self.basis(t, harmonics) for t in range(count)])  # (L, 2·H)
+        h = torch.arange(1, harmonics + 1).repeat_interleave(2)
+        scale = torch.where(
+            2 * h < count, 2.0 / count, torch.where(2 * h == count, 1.0 / count, 0.0)
+        )
+        terms = torch.einsum("lk,lnc->nkc", (basis * scale).to(values), values)
+        return values.mean(0), terms
+
     def distance(self, t: float, centre: torch.Tensor) -> torch.Tensor:
         """Signed distance in frames from each ``centre`` to ``t`` around the loop, in
         [−period/2, period/2)."""
@@ -174,8 +193,8 @@ class SpacetimeGaussians:
         posed at each frame of the loop, of which only the means and colours differ, as the
         tracked stage leaves them (``lift.pipeline.fit_tracked``).
 
-        The means and the SH DC over the frames are fitted by least squares with the model's
-        Fourier terms; with harmonics ⌊period / 2⌋ (at most 8) the fit passes through every
+        The means and the SH DC over the frames are fitted by the model's Fourier terms
+        (``TimeModel.fitted``); with harmonics ⌊period / 2⌋ (at most 8) the fit passes through every
         frame exactly, fewer keep the slowest waves. Scale, rotation and opacity are frame
         0's; the higher SH bands, which the form holds constant, are their mean over the
         frames. Present throughout: a width of 1000 periods, at which the opacity at every
@@ -187,23 +206,16 @@ class SpacetimeGaussians:
         if len(counts) != 1:
             raise ValueError(f"the frames must pose one set of Gaussians, got counts {counts}")
 
-        def fitted(values: torch.Tensor, harmonics: int) -> tuple[torch.Tensor, torch.Tensor]:
-            """(frames, N, 3) → the constant (N, 3) and the terms (N, 2·harmonics, 3)."""
-            basis = torch.stack(
-                [torch.cat([torch.ones(1, dtype=torch.float64), model.basis(t, harmonics)])
-                 for t in range(model.period)]
-            ).to(values.device)  # fmt: skip
-            # The pseudo-inverse: the minimum-norm least-squares solution, as sin(period/2 · u)
-            # is 0 at every frame (and an empty set is no problem).
-            solved = torch.linalg.pinv(basis) @ values.double().reshape(model.period, -1)
-            solved = solved.reshape(1 + 2 * harmonics, -1, 3).to(values.dtype)
-            return solved[0], solved[1:].permute(1, 0, 2).contiguous()
-
         first = frames[0]
-        means, position_terms = fitted(
+        means, position_terms = model.fitted(
             torch.stack([g.means for g in frames]), model.position_harmonics
         )
-        dc, colour_terms = fitted(torch.stack([g.sh[:, 0] for g in frames]), model.colour_harmonics)
+        dc, colour_terms = model.fitted(
+            torch.stack([g.sh[:, 0] for g in frames]), model.colour_harmonics
+        )
+        dtype = first.means.dtype
+        means, position_terms = means.to(dtype), position_terms.to(dtype)
+        dc, colour_terms = dc.to(dtype), colour_terms.to(dtype)
         rest = torch.stack([g.sh[:, 1:] for g in frames]).mean(dim=0)
         sh = torch.cat([dc[:, None], rest], dim=1)
         canonical = Gaussians(means, first.log_scales, first.quats, first.opacity_logits, sh)

@@ -135,16 +135,9 @@ def spacetime_start(
     look = equirect_sampler(gaussians.means.detach().cpu().to(torch.float64), width, height)
     look = look.to(frames.device)
     series = torch.stack([look.apply(f.permute(2, 0, 1).float()).T for f in frames])  # (L, N, 3)
-    dc_series = rgb_to_sh_dc(series.clamp(0, 1)).to(torch.float64)
+    dc, terms = model.fitted(rgb_to_sh_dc(series.clamp(0, 1)), model.colour_harmonics)
     sh = gaussians.sh.clone()
-    sh[:, 0] = dc_series.mean(0).to(sh.device, sh.dtype)
+    sh[:, 0] = dc.to(sh.device, sh.dtype)
     start = SpacetimeGaussians.still(model, replace(gaussians, sh=sh))
-    harmonics = model.colour_harmonics
-    basis = torch.stack([model.basis(t, harmonics) for t in range(count)])  # (L, 2·Hc)
-    # Twice the mean projection; once at the Nyquist rate (its sine is zero), none above it
-    # (the frames cannot tell those terms apart from lower ones).
-    h = torch.arange(1, harmonics + 1).repeat_interleave(2)
-    scale = torch.where(2 * h < count, 2.0 / count, torch.where(2 * h == count, 1.0 / count, 0.0))
-    terms = torch.einsum("lk,lnc->nkc", (basis * scale).to(dc_series), dc_series)
     start.colour_terms.copy_(terms.to(start.colour_terms))
     return start
